@@ -1,0 +1,60 @@
+"""The project's error classes and the input checks that raise them.
+
+Every check here raises a subclass of :class:`SfbError`, itself a ``ValueError``, with a
+one-line message that names the problem. The CLI turns these into a message and an exit code.
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+class SfbError(ValueError):
+    """Base class of every error that sfb-video reports to a user as one line."""
+
+
+class MeshError(SfbError):
+    """A mesh is malformed: non-finite vertices, faces out of range, wrong shapes."""
+
+
+class PoseError(SfbError):
+    """A pose puts geometry where it cannot be rendered (behind or on the camera plane)."""
+
+
+class ConfigError(SfbError):
+    """A configuration file or override is invalid."""
+
+
+def check_shape(x: torch.Tensor, shape: tuple[int | None, ...], name: str) -> None:
+    """Raise :class:`SfbError` unless ``x`` has ``shape`` (``None`` matches any size)."""
+    ok = x.dim() == len(shape) and all(s is None or s == d for s, d in zip(shape, x.shape, strict=True))
+    if not ok:
+        want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+        raise SfbError(f"{name} must have shape {want}, got {tuple(x.shape)}")
+
+
+def check_finite(x: torch.Tensor, name: str, error: type[SfbError] = SfbError) -> None:
+    """Raise ``error`` if ``x`` holds NaN or infinite values."""
+    if not bool(torch.isfinite(x).all()):
+        raise error(f"{name} contains NaN or infinite values")
+
+
+def check_faces(faces: torch.Tensor, num_vertices: int) -> None:
+    """Check that ``faces`` (F, 3) is an integer tensor indexing ``num_vertices`` vertices."""
+    check_shape(faces, (None, 3), "faces")
+    if faces.dtype not in (torch.int32, torch.int64):
+        raise MeshError(f"faces must be an integer tensor, got {faces.dtype}")
+    if faces.numel() and (int(faces.min()) < 0 or int(faces.max()) >= num_vertices):
+        raise MeshError(
+            f"faces index vertices out of range: indices span [{int(faces.min())}, "
+            f"{int(faces.max())}] but the mesh has {num_vertices} vertices"
+        )
+
+
+def check_in_front(depth: torch.Tensor, near: float) -> None:
+    """Check that every vertex depth (*, V) lies beyond the near plane ``near``."""
+    if depth.numel() and float(depth.min()) <= near:
+        raise PoseError(
+            f"the mesh reaches behind the camera or its near plane (min depth {float(depth.min()):.3g}"
+            f" <= near {near:g}): move it in front of the camera"
+        )

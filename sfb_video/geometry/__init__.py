@@ -1,0 +1,1 @@
+"""Camera, rotations and meshes: the geometry every stage shares."""

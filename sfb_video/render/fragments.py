@@ -1,0 +1,52 @@
+"""What the rasteriser finds per pixel, handed to the shader.
+
+The lists are sparse: only pixels that show a face are listed, because a fast moving object
+covers a small part of its crop and shading cost should follow the object, not the image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass(frozen=True)
+class Fragments:
+    """Per-pixel rasterisation result for T renders of one mesh.
+
+    A pixel is *listed* when it is inside the silhouette (its covering face is the nearest one
+    under the z-test) or in the band just outside it (within the distance where the soft
+    silhouette is non-negligible; its face is the one on the near side of the closest contour
+    edge, and its barycentrics those of the closest point on that edge).
+
+    Attributes:
+        size: (T, H, W) of the renders.
+        pix: (P,) flat index into T * H * W of each listed pixel.
+        face: (P,) face shown at each listed pixel.
+        bary: (P, 3) perspective-correct barycentric weights of the point shown, in ``face``;
+            differentiable w.r.t. the vertices.
+        inside: (P,) True where the pixel centre is covered by the mesh.
+        dist2: (P,) squared distance from the pixel centre to the silhouette in normalised image
+            units (half the longer image side is 1), 0 inside; differentiable w.r.t. vertices.
+        zbuf: (T, H, W) depth of the covering surface, +inf where nothing covers (no gradient).
+    """
+
+    size: tuple[int, int, int]
+    pix: torch.Tensor
+    face: torch.Tensor
+    bary: torch.Tensor
+    inside: torch.Tensor
+    dist2: torch.Tensor
+    zbuf: torch.Tensor
+
+    def dense(self, values: torch.Tensor, fill: float = 0.0) -> torch.Tensor:
+        """Scatter per-listed-pixel ``values`` (P, *C) into a (T, H, W, *C) tensor, differentiably."""
+        out = values.new_full((self.size[0] * self.size[1] * self.size[2], *values.shape[1:]), fill)
+        return out.index_copy(0, self.pix, values).reshape(*self.size, *values.shape[1:])
+
+    @property
+    def face_idx(self) -> torch.Tensor:
+        """(T, H, W) covering face per pixel, -1 where the pixel centre is not covered."""
+        face = torch.where(self.inside, self.face, torch.full_like(self.face, -1))
+        return self.dense(face, fill=-1)
