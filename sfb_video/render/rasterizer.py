@@ -23,12 +23,7 @@ from sfb_video.checks import check_in_front
 from sfb_video.config import RenderConfig
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology, check_vertices
-from sfb_video.render.barycentric import (
-    cross2,
-    perspective_correct,
-    screen_barycentric,
-    segment_closest,
-)
+from sfb_video.render.barycentric import cross2, segment_closest
 from sfb_video.render.fragments import Fragments
 
 
@@ -116,12 +111,13 @@ def _inverse_depth_planes(tri: torch.Tensor, inv_z: torch.Tensor) -> torch.Tenso
 
 def _visible_faces(
     uv: torch.Tensor, depth: torch.Tensor, topology: MeshTopology, camera: PinholeCamera
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Hard z-buffered visibility, without gradient.
 
     Returns:
         pix: (P,) flat pixel index into T * H * W of covered pixels.
-        face: (P,) their nearest covering face.
+        cand: (P,) index of their nearest covering face into the candidate list.
+        candidates: (K, 2) (render, face) of every face that was rasterised.
         zbuf: (T, H, W) depth at covered pixels, +inf elsewhere.
         front: (T, F) which faces face the camera.
     """
@@ -143,7 +139,25 @@ def _visible_faces(
     win = _argmin_per_key(key, -inv_z, num_t * height * width)
     zbuf = torch.full((num_t * height * width,), math.inf, device=uv.device, dtype=uv.dtype)
     zbuf[key[win]] = 1.0 / inv_z[win]
-    return key[win], f_idx[owner[win]], zbuf.reshape(num_t, height, width), front
+    candidates = torch.stack((t_idx, f_idx), -1)
+    return key[win], owner[win], candidates, zbuf.reshape(num_t, height, width), front
+
+
+def _weight_planes(uv: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, cand: torch.Tensor) -> torch.Tensor:
+    """Planes (K, 3, 3) whose ratios give perspective-correct barycentrics, with gradient.
+
+    Screen barycentric l_i is affine in the pixel (u, v), and the 3D weight of corner i is
+    (l_i / z_i) / sum_j (l_j / z_j). Up to the triangle's area, which cancels in that ratio,
+    l_i = (q_v - r_v) u + (r_u - q_u) v + (q_u r_v - q_v r_u) with (q, r) the next two corners.
+    Row i holds those three coefficients divided by z_i.
+    """
+    corners = faces[cand[:, 1]]
+    tri = uv[cand[:, :1], corners]  # (K, 3, 2)
+    q, r = tri.roll(-1, dims=1), tri.roll(-2, dims=1)
+    coef = torch.stack(
+        (q[..., 1] - r[..., 1], r[..., 0] - q[..., 0], q[..., 0] * r[..., 1] - q[..., 1] * r[..., 0]), -1
+    )
+    return coef / depth[cand[:, :1], corners][..., None]
 
 
 def _contour_band(
@@ -215,7 +229,7 @@ def rasterize(
     topo = topology.to(vertices.device)
     faces = topo.faces
     with torch.no_grad():
-        pix_in, face_in, zbuf, front = _visible_faces(uv.detach(), depth.detach(), topo, camera)
+        pix_in, cand_in, candidates, zbuf, front = _visible_faces(uv.detach(), depth.detach(), topo, camera)
         covered = torch.zeros(num_t * height * width, dtype=torch.bool, device=uv.device)
         covered[pix_in] = True
         pix_out, t_out, edge_out, side_out = _contour_band(
@@ -223,11 +237,12 @@ def rasterize(
         )
 
     # Inside: barycentrics of the pixel centre in its covering face, now with gradient.
-    t_in = pix_in // (height * width)
-    corners = faces[face_in]  # (P, 3)
-    p_in = torch.stack((pix_in % width, (pix_in // width) % height), -1).to(uv.dtype)
-    bary_in = screen_barycentric(p_in, uv[t_in[:, None], corners])
-    bary_in = perspective_correct(bary_in, depth[t_in[:, None], corners])
+    face_in = candidates[cand_in, 1]
+    plane = _weight_planes(uv, depth, faces, candidates)[cand_in]  # (P, 3, 3)
+    u_in = (pix_in % width).to(uv.dtype)[:, None]
+    v_in = ((pix_in // width) % height).to(uv.dtype)[:, None]
+    bary_in = plane[..., 0] * u_in + plane[..., 1] * v_in + plane[..., 2]
+    bary_in = bary_in / bary_in.sum(-1, keepdim=True)
 
     # Band: the closest point on the contour edge, expressed in the edge's front face.
     ends = topo.edges[edge_out]  # (Q, 2)

@@ -49,7 +49,7 @@ def sample_texture(fragments: Fragments, face_uv_coords: torch.Tensor, texture: 
     Returns:
         (T, 3, H, W) colours, 0 at pixels that show no face.
     """
-    uv = (fragments.bary[:, :, None] * face_uv_coords[fragments.face]).sum(1)  # (P, 2)
+    uv = torch.bmm(fragments.bary[:, None, :], face_uv_coords[fragments.face]).squeeze(1)  # (P, 2)
     # UV (0, 0) is the texture's top-left corner, which grid_sample calls (-1, -1).
     grid = (2 * uv - 1).reshape(1, 1, -1, 2)
     colour = F.grid_sample(texture[None], grid, mode="bilinear", padding_mode="border", align_corners=False)

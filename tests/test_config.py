@@ -1,0 +1,56 @@
+from pathlib import Path
+
+import pytest
+
+from sfb_video.checks import ConfigError
+from sfb_video.config import Config, config_to_dict, load_config
+
+
+def test_default_preset_matches_the_paper() -> None:
+    cfg = load_config("default")
+    assert cfg.render.sigma_inv == 7000.0
+    assert cfg.render.time_steps == 8
+
+
+def test_fast_preset_overrides_only_what_it_names() -> None:
+    cfg = load_config("fast")
+    assert cfg.render.time_steps == 4
+    assert cfg.render.sigma_inv == Config().render.sigma_inv
+
+
+def test_dotted_overrides_are_typed() -> None:
+    cfg = load_config("default", ["render.sigma_inv=3000", "demo.travel=[1, 2, 3]"])
+    assert cfg.render.sigma_inv == 3000.0
+    assert cfg.demo.travel == (1.0, 2.0, 3.0)
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("render.sigmainv=3", "unknown config key render.sigmainv"),
+        ("render.time_steps=2.5", "render.time_steps must be int"),
+        ("demo.travel=[1, 2]", "list of 3 values"),
+        ("render", "must look like"),
+    ],
+)
+def test_bad_overrides_name_the_problem(override: str, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_config("default", [override])
+
+
+def test_missing_and_malformed_presets(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="not found"):
+        load_config("no_such_preset")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("render: [unclosed\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_config(bad)
+
+
+def test_resolved_config_round_trips_through_yaml(tmp_path: Path) -> None:
+    import yaml
+
+    cfg = load_config("fast", ["render.sigma_inv=123"])
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(config_to_dict(cfg)))
+    assert load_config(path) == cfg
