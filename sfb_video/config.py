@@ -51,13 +51,15 @@ class DemoConfig:
     width: int = 320
     height: int = 240
     prototype: str = "sphere"
-    depth: float = 6.0
+    depth: float = 4.5
     """Distance of the object from the camera, in object sizes."""
     travel: tuple[float, float, float] = (2.0, 0.6, 0.0)
     """Translation during the exposure, in object sizes."""
     rotation_deg: tuple[float, float, float] = (0.0, 90.0, 30.0)
     """Rotation during the exposure as an axis-angle vector in degrees."""
     texture_size: int = 100
+    subframes: int = 8
+    """Sharp sub-frames to split the exposure into for the TSR strip."""
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,137 @@
+"""Renderer speed and memory at the paper's setting, printed as a table.
+
+    python -m benchmarks.render [--repeats 20] [--device cpu]
+
+The scene: a 320x240 crop, T = 8 poses over one exposure, a prototype filling about a third of
+the crop, a 100x100 texture. Each row gives median milliseconds per call for the forward pass
+and forward + backward, and the split of one forward + backward between rasterisation (hard
+visibility and band search, no gradient), the differentiable part of the rasteriser and
+shading, and the backward pass. Peak memory is the process's peak resident set size.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import resource
+import statistics
+import time
+from collections.abc import Callable
+
+import torch
+
+from sfb_video.config import RenderConfig
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.geometry.pose import pose_vertices
+from sfb_video.geometry.prototypes import load_prototype
+from sfb_video.geometry.rotation import exposure_rotations
+from sfb_video.render import MeshRenderer, rasterize
+from sfb_video.render.shader import shade
+
+
+def _median_ms(fn: Callable[[], object], repeats: int, device: torch.device) -> float:
+    times = []
+    for _ in range(repeats):
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        start = time.perf_counter()
+        fn()
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        times.append(time.perf_counter() - start)
+    return 1000 * statistics.median(times)
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def bench_case(prototype: str, time_steps: int, repeats: int, device: torch.device) -> dict[str, float | str]:
+    camera = PinholeCamera.from_fov(320, 240, 45.0)
+    settings = RenderConfig(time_steps=time_steps)
+    verts, topo = load_prototype(prototype)
+    verts, topo = verts.to(device), topo.to(device)
+    # Distance at which the unit-diameter object's disc covers a third of the crop.
+    radius_px = math.sqrt(320 * 240 / 3 / math.pi)
+    depth = camera.fy * 0.5 / radius_px
+    taus = torch.linspace(0, 1, time_steps, device=device)
+    rots = exposure_rotations(torch.eye(3, device=device), torch.tensor([0.3, 1.0, 0.2], device=device), taus)
+    trans = torch.tensor([-0.15, 0.0, depth], device=device) + taus[:, None] * torch.tensor(
+        [0.3, 0.05, 0.0], device=device
+    )
+    texture = torch.rand(3, 100, 100, device=device, requires_grad=True)
+    offsets = torch.zeros_like(verts, requires_grad=True)
+    renderer = MeshRenderer(camera, settings)
+
+    def posed() -> torch.Tensor:
+        return pose_vertices(verts + offsets, rots, trans)
+
+    def forward() -> object:
+        with torch.no_grad():
+            return renderer(posed(), topo, texture)
+
+    def forward_backward() -> None:
+        out = renderer(posed(), topo, texture)
+        (out.rgb.mean() + out.alpha.mean()).backward()
+
+    forward_backward()  # warm-up: allocator and kernels
+    coverage = float((forward().face_idx >= 0).float().mean())
+    fwd = _median_ms(forward, repeats, device)
+    fwd_bwd = _median_ms(forward_backward, repeats, device)
+
+    def split() -> tuple[float, float, float]:
+        start = time.perf_counter()
+        v = posed()
+        fragments = rasterize(v, topo, camera, settings)
+        mid = time.perf_counter()
+        out = shade(fragments, topo, texture, settings.sigma_inv)
+        loss = out.rgb.mean() + out.alpha.mean()
+        end_fwd = time.perf_counter()
+        loss.backward()
+        end = time.perf_counter()
+        return mid - start, end_fwd - mid, end - end_fwd
+
+    parts = [split() for _ in range(repeats)]
+    raster, shading, backward = (1000 * statistics.median(p[i] for p in parts) for i in range(3))
+    return {
+        "prototype": prototype,
+        "faces": topo.num_faces,
+        "T": time_steps,
+        "coverage": coverage,
+        "fwd": fwd,
+        "fwd+bwd": fwd_bwd,
+        "rasterise": raster,
+        "shade": shading,
+        "backward": backward,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    args = parser.parse_args()
+    device = torch.device(args.device)
+    base_mb = _peak_rss_mb()
+    cases = [("sphere", 8), ("sphere_large", 8), ("torus", 8), ("sphere", 1)]
+    rows = [bench_case(name, t, args.repeats, device) for name, t in cases]
+    print(
+        f"device {device}, torch {torch.__version__}, {torch.get_num_threads()} threads, crop 320x240, texture 100x100"
+    )
+    print(f"median of {args.repeats} calls, milliseconds; rasterise/shade/backward split one forward+backward\n")
+    header = "| prototype | faces | T | coverage | fwd | fwd+bwd | rasterise | shade | backward |"
+    print(header)
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        print(
+            f"| {r['prototype']} | {r['faces']} | {r['T']} | {r['coverage']:.2f} | {r['fwd']:.1f} | "
+            f"{r['fwd+bwd']:.1f} | {r['rasterise']:.1f} | {r['shade']:.1f} | {r['backward']:.1f} |"
+        )
+    peak = _peak_rss_mb()
+    print(f"\npeak resident memory: {peak:.0f} MB for the process, {peak - base_mb:.0f} MB added by rendering")
+    if device.type == "cuda":
+        print(f"peak CUDA memory: {torch.cuda.max_memory_allocated() / 2**20:.0f} MB")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,113 @@
+"""The ``sfb-video`` command line: a preset plus dotted overrides, one subcommand per job.
+
+Errors a user can act on (bad input, bad config, unwritable output) print one line and exit
+with status 2; Ctrl-C exits with 130 and leaves no half-written output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+import yaml
+
+from sfb_video import __version__
+from sfb_video.checks import SfbError
+from sfb_video.config import config_to_dict, load_config
+from sfb_video.imageio import atomic_write_bytes, write_image
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` picks CUDA when present, else the CPU; an unavailable device is an error."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise SfbError(f"device {name!r} requested but CUDA is not available; use --device cpu")
+    try:
+        return torch.device(name)
+    except RuntimeError:
+        raise SfbError(f"unknown device {name!r}; use auto, cpu or cuda") from None
+
+
+class OutputFolder:
+    """A run folder written in a hidden sibling and moved into place only when complete."""
+
+    def __init__(self, path: Path, overwrite: bool) -> None:
+        self.path = path
+        if path.exists() and not overwrite:
+            raise SfbError(f"output folder {path} already exists; pass --overwrite to replace it")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.partial-"))
+        except OSError as exc:
+            raise SfbError(f"cannot write to output folder {path}: {exc.strerror}") from None
+
+    def __enter__(self) -> Path:
+        return self.tmp
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        if exc_type is not None:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+            return
+        if self.path.exists():
+            old = self.path.with_name(f".{self.path.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            self.path.rename(old)
+            self.tmp.rename(self.path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            self.tmp.rename(self.path)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from sfb_video.demo import run_demo
+
+    config = load_config(args.config, args.set)
+    result = run_demo(config, resolve_device(args.device))
+    with OutputFolder(Path(args.out), args.overwrite) as folder:
+        write_image(folder / "blurred.png", result.blurred)
+        write_image(folder / "background.png", result.background)
+        write_image(folder / "subframes.png", torch.cat(list(result.subframes), dim=2))
+        atomic_write_bytes(folder / "config.yaml", yaml.safe_dump(config_to_dict(config), sort_keys=False).encode())
+    if not args.quiet:
+        print(
+            f"wrote {args.out}/: blurred.png (one exposure), subframes.png ({len(result.subframes)} sharp sub-frames)"
+        )
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="sfb-video", description="Shape from Blur for videos of fast moving objects.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--config", default="default", help="preset name in configs/ or a YAML path")
+    common.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config field")
+    common.add_argument("--device", default="auto", help="auto (CUDA if present), cpu or cuda")
+    common.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    common.add_argument("--quiet", action="store_true", help="print nothing on success")
+    demo = sub.add_parser("demo", parents=[common], help="render a prototype tumbling through one exposure")
+    demo.add_argument("--out", default="runs/demo", help="output folder")
+    demo.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except SfbError as exc:
+        print(f"sfb-video: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("sfb-video: interrupted; no partial output was left", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

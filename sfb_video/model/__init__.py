@@ -1,0 +1,1 @@
+"""The image formation model of Shape from Blur and what builds on it."""
