@@ -45,6 +45,57 @@ class RenderConfig:
 
 
 @dataclass(frozen=True)
+class CropConfig:
+    """How a detection box becomes the crop a fit renders in."""
+
+    margin: float = 0.5
+    """Growth on each side, as a fraction of the box's shorter side (about one object radius)."""
+    aspect: float = 4 / 3
+    """Width / height of the crop (the paper's 320x240)."""
+    max_width: int = 320
+    """Crops wider than this are downsampled to it; smaller ones keep their native resolution."""
+    diff_threshold: float = 0.1
+    """||I - B||_2 above this marks the object (the difference mask D of L_D)."""
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Test-time optimisation of one blurred frame (paper, Sec. 3.2)."""
+
+    prototypes: tuple[str, ...] = ("sphere", "torus")
+    """Tried in turn from a cold start; the lowest image loss wins."""
+    deform: bool = True
+    """Optimise per-vertex offsets (off: the prototype keeps its shape)."""
+    iterations: int = 500
+    """Adam steps of a cold start."""
+    warm_iterations: int = 150
+    """At most this many steps when starting from a previous frame's result."""
+    lr: float = 0.1
+    plateau_patience: int = 40
+    """Stop when the best image loss has not improved for this many steps ..."""
+    plateau_tolerance: float = 1e-3
+    """... by more than this fraction."""
+    texture_size: int = 100
+    size_range: tuple[float, float] = (0.05, 1.0)
+    """Apparent diameter bounds, as fractions of the crop height (paper: 5% to 100%)."""
+    init_size: float = 0.4
+    """Initial apparent diameter, as a fraction of the crop height."""
+    max_rotation_deg: float = 120.0
+    """Cap on the rotation during one exposure (paper: 120 degrees)."""
+    w_image: float = 1.0
+    """Weight of L_I, the L1 reconstruction loss."""
+    w_silhouette: float = 1.0
+    """Weight of L_S, the IoU with given sub-frame masks (used only when masks are given)."""
+    w_difference: float = 1.0
+    """Weight of L_D, the IoU of the mean silhouette with the difference mask (without masks)."""
+    w_texture: float = 1.0
+    """Weight of L_T, the texture's total variation."""
+    w_laplacian: float = 1000.0
+    """Weight of L_L, the Laplacian smoothness of the vertices (paper: 1000)."""
+    seed: int = 0
+
+
+@dataclass(frozen=True)
 class DemoConfig:
     """The built-in demo: a prototype moving through one exposure over a background."""
 
@@ -68,6 +119,8 @@ class Config:
 
     camera: CameraConfig = field(default_factory=CameraConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
+    crop: CropConfig = field(default_factory=CropConfig)
+    fit: FitConfig = field(default_factory=FitConfig)
     demo: DemoConfig = field(default_factory=DemoConfig)
 
 
@@ -79,6 +132,10 @@ def _coerce(value: Any, typ: Any, where: str) -> Any:
     origin = typing.get_origin(typ)
     if origin is tuple:
         args = typing.get_args(typ)
+        if len(args) == 2 and args[1] is Ellipsis:
+            if not isinstance(value, list | tuple) or not value:
+                raise ConfigError(f"{where} must be a non-empty list, got {value!r}")
+            return tuple(_coerce(v, args[0], where) for v in value)
         if not isinstance(value, list | tuple) or len(value) != len(args):
             raise ConfigError(f"{where} must be a list of {len(args)} values, got {value!r}")
         return tuple(_coerce(v, a, where) for v, a in zip(value, args, strict=True))

@@ -22,6 +22,7 @@ def test_dotted_overrides_are_typed() -> None:
     cfg = load_config("default", ["render.sigma_inv=3000", "demo.travel=[1, 2, 3]"])
     assert cfg.render.sigma_inv == 3000.0
     assert cfg.demo.travel == (1.0, 2.0, 3.0)
+    assert load_config("default", ["fit.prototypes=[torus]"]).fit.prototypes == ("torus",)
 
 
 @pytest.mark.parametrize(
@@ -31,6 +32,7 @@ def test_dotted_overrides_are_typed() -> None:
         ("render.time_steps=2.5", "render.time_steps must be int"),
         ("demo.travel=[1, 2]", "list of 3 values"),
         ("render", "must look like"),
+        ("fit.prototypes=[]", "non-empty list"),
     ],
 )
 def test_bad_overrides_name_the_problem(override: str, message: str) -> None:

@@ -1,0 +1,111 @@
+"""From a frame, its background and an object box to the crop a fit works in.
+
+The crop is the box grown by about one object radius, widened to 4:3, kept inside the frame
+where it fits, and rendered at native resolution up to a cap (rendering cost grows with pixels,
+and upsampling a small crop adds none of them information). The crop's camera is the frame's
+camera with shifted and scaled intrinsics, so 3D results from every crop share one frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from sfb_video.checks import SfbError
+from sfb_video.config import CropConfig
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.model.losses import difference_mask
+
+Box = tuple[int, int, int, int]
+"""(x0, y0, width, height) in full-frame pixels; (x0, y0) is the top-left pixel."""
+
+
+@dataclass(frozen=True)
+class Crop:
+    """One frame's working crop.
+
+    Attributes:
+        box: the crop's box in the full frame.
+        camera: the camera that renders exactly this crop at its working resolution.
+        image: (3, h, w) the blurred frame, cropped and resized.
+        background: (3, h, w) the background, likewise.
+        diff_mask: (h, w) the difference mask D.
+    """
+
+    box: Box
+    camera: PinholeCamera
+    image: torch.Tensor
+    background: torch.Tensor
+    diff_mask: torch.Tensor
+
+
+def find_object_box(image: torch.Tensor, background: torch.Tensor, threshold: float) -> Box | None:
+    """The box of the largest connected blob of D = ||I - B|| > threshold, or None if there is none.
+
+    Args:
+        image, background: (3, H, W) in [0, 1].
+    """
+    mask = difference_mask(image, background, threshold).cpu().numpy().astype(np.uint8)
+    count, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if count <= 1:
+        return None
+    best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    x, y, w, h, _ = (int(v) for v in stats[best])
+    return x, y, w, h
+
+
+def crop_box(box: Box, frame_size: tuple[int, int], config: CropConfig) -> Box:
+    """Grow ``box`` by the margin, widen it to the aspect ratio and fit it in the frame (W, H)."""
+    x, y, w, h = box
+    width, height = frame_size
+    pad = config.margin * min(w, h)
+    cx, cy = x + w / 2, y + h / 2
+    w, h = w + 2 * pad, h + 2 * pad
+    if w / h < config.aspect:
+        w = h * config.aspect
+    else:
+        h = w / config.aspect
+    w, h = min(math.ceil(w), width), min(math.ceil(h), height)
+    x0 = round(min(max(cx - w / 2, 0), width - w))
+    y0 = round(min(max(cy - h / 2, 0), height - h))
+    return x0, y0, w, h
+
+
+def _resize(image: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    if image.shape[-2:] == (size[1], size[0]):
+        return image
+    return F.interpolate(image[None], size=(size[1], size[0]), mode="bilinear", antialias=True, align_corners=False)[0]
+
+
+def make_crop(
+    image: torch.Tensor, background: torch.Tensor, box: Box, camera: PinholeCamera, config: CropConfig
+) -> Crop:
+    """Crop ``image`` and ``background`` (3, H, W) around the object box ``box``.
+
+    Raises:
+        SfbError: when the images differ in size or the box is empty or outside the frame.
+    """
+    if image.shape != background.shape:
+        raise SfbError(f"image {tuple(image.shape[1:])} and background {tuple(background.shape[1:])} differ in size")
+    height, width = image.shape[1:]
+    x, y, w, h = box
+    if w <= 0 or h <= 0 or x >= width or y >= height or x + w <= 0 or y + h <= 0:
+        raise SfbError(f"object box {box} is empty or outside the {width}x{height} frame")
+    cb = crop_box(box, (width, height), config)
+    x0, y0, cw, ch = cb
+    scale = min(1.0, config.max_width / cw)
+    out = (max(1, round(cw * scale)), max(1, round(ch * scale)))
+    img = _resize(image[:, y0 : y0 + ch, x0 : x0 + cw], out).clamp(0, 1)
+    bgr = _resize(background[:, y0 : y0 + ch, x0 : x0 + cw], out).clamp(0, 1)
+    return Crop(
+        box=cb,
+        camera=camera.crop(x0, y0, cw, ch, out[0], out[1]),
+        image=img,
+        background=bgr,
+        diff_mask=difference_mask(img, bgr, config.diff_threshold),
+    )

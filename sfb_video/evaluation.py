@@ -1,0 +1,112 @@
+"""Fitting synthetic frames and scoring the fits against their ground truth.
+
+Used by the fitter's tests and benchmark. Image measures are taken, as the FMO benchmark does,
+on the tight box of the object's exposure, with sub-frames rendered by the full-frame camera
+restricted to that box; 3D measures compare positions at the sub-frames' mid-times and the
+rotation made during the exposure (the mesh's own orientation is arbitrary for a prototype).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from sfb_video import metrics
+from sfb_video.config import Config
+from sfb_video.crop import Crop, make_crop
+from sfb_video.fitter import FitResult, fit_frame
+from sfb_video.geometry.rotation import axis_angle_to_matrix
+from sfb_video.synth import SyntheticClip
+
+
+@dataclass(frozen=True)
+class FrameScore:
+    """Accuracy of one fitted frame (see the module docstring).
+
+    Attributes:
+        tiou, psnr, ssim: benchmark measures on the tight box.
+        translation_err: mean position error at the sub-frame mid-times, in object sizes.
+        rotation_err_deg: angle between the estimated and true rotation during the exposure.
+        image_loss: the fit's L_I.
+        seconds: wall time of the fit.
+        flipped: whether the estimate was reversed in time to match the truth.
+    """
+
+    tiou: float
+    psnr: float
+    ssim: float
+    translation_err: float
+    rotation_err_deg: float
+    image_loss: float
+    seconds: float
+    flipped: bool
+
+
+def _image(array: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(array)).permute(2, 0, 1).float() / 255
+
+
+def synthetic_crop(clip: SyntheticClip, index: int, config: Config) -> Crop:
+    """The working crop of frame ``index`` around its true tight box (as the benchmark hands it)."""
+    truth = clip.truth[index]
+    if truth.bbox is None:
+        raise ValueError(f"frame {index} has no object")
+    return make_crop(_image(clip.frames[index]), _image(clip.scene.background), truth.bbox, clip.camera, config.crop)
+
+
+def crop_masks(clip: SyntheticClip, index: int, crop: Crop) -> torch.Tensor:
+    """The true sub-frame masks (N, h, w) of frame ``index``, cut and resized to ``crop``."""
+    x, y, w, h = crop.box
+    masks = torch.from_numpy(clip.truth[index].masks[:, y : y + h, x : x + w]).float()
+    size = crop.image.shape[1:]
+    return F.interpolate(masks[:, None], size=size, mode="bilinear", antialias=True, align_corners=False)[:, 0]
+
+
+def score_fit(fit: FitResult, clip: SyntheticClip, index: int, config: Config) -> FrameScore:
+    """Compare a fit of frame ``index`` with its ground truth."""
+    truth = clip.truth[index]
+    n = clip.spec.num_subframes
+    x, y, w, h = truth.bbox
+    box_camera = clip.camera.crop(x, y, w, h, w, h)
+    background = _image(clip.scene.background)[:, y : y + h, x : x + w]
+    estimate = fit.state.render_subframes(box_camera, background, n, 4, config.render)
+    estimate = estimate.permute(0, 2, 3, 1).numpy()
+    expected = truth.subframes[:, y : y + h, x : x + w].astype(np.float64) / 255
+    flipped = metrics.best_direction(estimate, expected)
+    motion = fit.state.motion.reversed() if flipped else fit.state.motion
+    if flipped:
+        estimate = estimate[::-1]
+    taus = (torch.arange(n, dtype=torch.float32) + 0.5) / n
+    _, positions = motion.at(taus)
+    centres, _ = clip.camera.project(positions)
+    true_positions = truth.motion.x0[None] + taus.numpy()[:, None].astype(np.float64) * truth.motion.dx[None]
+    est_delta = axis_angle_to_matrix(motion.omega.double()).numpy()
+    true_delta = axis_angle_to_matrix(torch.from_numpy(truth.motion.omega)).numpy()
+    return FrameScore(
+        tiou=metrics.tiou(centres.numpy(), truth.centres, truth.radius_px),
+        psnr=metrics.psnr(estimate, expected),
+        ssim=metrics.ssim(estimate, expected),
+        translation_err=metrics.translation_error(positions.numpy(), true_positions),
+        rotation_err_deg=metrics.rotation_error_deg(est_delta, true_delta),
+        image_loss=fit.losses["image"],
+        seconds=fit.seconds,
+        flipped=flipped,
+    )
+
+
+def fit_synthetic_frame(
+    clip: SyntheticClip, index: int, config: Config, use_true_masks: bool = False
+) -> tuple[FitResult, FrameScore]:
+    """Fit frame ``index`` of a synthetic clip from a cold start and score it.
+
+    Args:
+        use_true_masks: fit with L_S on the true sub-frame masks (standing in for DeFMO's)
+            instead of L_D on the difference mask.
+    """
+    crop = synthetic_crop(clip, index, config)
+    masks = crop_masks(clip, index, crop) if use_true_masks else None
+    fit = fit_frame(crop, config.fit, config.render, masks=masks)
+    return fit, score_fit(fit, clip, index, config)

@@ -1,0 +1,178 @@
+"""The motion of an object during one exposure, with bounded, well-conditioned parameters.
+
+Convention:
+    Positions are parametrised in the crop the fit works in, as the paper does for the image:
+    the centre of mass projects to crop NDC tanh(a), tanh(b) in (-1, 1) (so it stays inside
+    the crop), and its apparent diameter is a fraction of the crop height between
+    ``size_range`` (paper: 5% to 100% of the field of view), which fixes its depth. The 3D
+    start and end positions follow through the crop camera, and x(tau) = x0 + tau * dx.
+    R(tau) = exp(tau * omega) @ R0 with R0 a WXYZ quaternion and |omega| smoothly capped at
+    ``max_rotation_deg`` (paper: 120 degrees).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.geometry.rotation import (
+    axis_angle_to_quaternion,
+    exposure_rotations,
+    matrix_to_axis_angle,
+    quaternion_to_matrix,
+)
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A recovered motion in camera coordinates (object sizes), detached from any optimiser.
+
+    Attributes:
+        x0: (3,) position of the centre of mass at the start of the exposure.
+        dx: (3,) translation during the exposure.
+        rot0: (3, 3) rotation at the start of the exposure.
+        omega: (3,) axis-angle rotation made during the exposure (radians).
+    """
+
+    x0: torch.Tensor
+    dx: torch.Tensor
+    rot0: torch.Tensor
+    omega: torch.Tensor
+
+    def at(self, taus: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rotations (T, 3, 3) and positions (T, 3) at exposure times ``taus`` (T,)."""
+        return exposure_rotations(self.rot0, self.omega, taus), self.x0 + taus[:, None] * self.dx
+
+    def reversed(self) -> Motion:
+        """The same path travelled backwards: what the time ambiguity of one frame allows."""
+        rot1 = exposure_rotations(self.rot0, self.omega, torch.ones(1, device=self.x0.device))[0]
+        return Motion(self.x0 + self.dx, -self.dx, rot1, -self.omega)
+
+    def to(self, device: torch.device | str) -> Motion:
+        return Motion(self.x0.to(device), self.dx.to(device), self.rot0.to(device), self.omega.to(device))
+
+
+@dataclass(frozen=True)
+class Streak:
+    """The blur streak seen in a difference mask, in crop pixels.
+
+    Attributes:
+        start, end: (2,) the two ends of the path of the object's centre (order arbitrary).
+        diameter: apparent object diameter in pixels (the streak's width).
+    """
+
+    start: torch.Tensor
+    end: torch.Tensor
+    diameter: float
+
+
+def streak_from_mask(mask: torch.Tensor) -> Streak:
+    """Fit a capsule to the (h, w) mask by its second moments.
+
+    A disc of diameter d has variance d^2 / 16 along any axis, which gives d from the minor
+    axis; a straight path of length L adds L^2 / 12 along the major axis.
+    """
+    ys, xs = torch.nonzero(mask > 0.5, as_tuple=True)
+    if xs.numel() < 2:
+        raise ValueError("the mask is empty: no streak to start from")
+    pts = torch.stack((xs, ys), -1).to(torch.float64)
+    centre = pts.mean(0)
+    evals, evecs = torch.linalg.eigh(torch.cov(pts.T))
+    diameter = 4 * float(evals[0].clamp_min(0.25).sqrt())
+    path = float((12 * (evals[1] - diameter**2 / 16)).clamp_min(0).sqrt())
+    # A minimal separation keeps start and end apart, so their gradients differ from the first step.
+    half = 0.5 * max(path, 1.0) * evecs[:, 1]
+    return Streak((centre - half).float(), (centre + half).float(), diameter)
+
+
+def cap_rotation(raw: torch.Tensor, max_angle: float) -> torch.Tensor:
+    """Map (3,) unconstrained ``raw`` to an axis-angle of norm < ``max_angle``, smoothly.
+
+    Small vectors pass unchanged (the map's derivative at 0 is the identity).
+    """
+    norm = raw.square().sum().add(1e-12).sqrt()
+    return raw * (max_angle * torch.tanh(norm / max_angle) / norm)
+
+
+class MotionParams(torch.nn.Module):
+    """Learnable motion of one exposure, expressed in a crop camera.
+
+    Args:
+        camera: the crop camera the fit renders in.
+        size_range: (min, max) apparent diameter as a fraction of the crop height.
+        max_rotation_deg: cap on the rotation during the exposure.
+        init_size: initial apparent diameter fraction.
+    """
+
+    def __init__(
+        self,
+        camera: PinholeCamera,
+        size_range: tuple[float, float],
+        max_rotation_deg: float,
+        init_size: float,
+    ) -> None:
+        super().__init__()
+        self.camera = camera
+        self.size_range = size_range
+        self.max_angle = math.radians(max_rotation_deg)
+        lo, hi = size_range
+        s = min(max((init_size - lo) / (hi - lo), 1e-3), 1 - 1e-3)
+        # Start and end: crop-NDC (a, b) and a size logit each; both start at the crop centre.
+        self.ends = torch.nn.Parameter(torch.tensor([[0.0, 0.0, math.log(s / (1 - s))]] * 2))
+        self.quat0 = torch.nn.Parameter(torch.tensor([1.0, 0.0, 0.0, 0.0]))
+        self.omega_raw = torch.nn.Parameter(torch.zeros(3))
+
+    def positions(self) -> torch.Tensor:
+        """(2, 3) camera-space centre of mass at the start and the end of the exposure."""
+        cam = self.camera
+        ndc = torch.tanh(self.ends[:, :2])
+        u = (ndc[:, 0] + 1) * cam.width / 2 - 0.5
+        v = (ndc[:, 1] + 1) * cam.height / 2 - 0.5
+        lo, hi = self.size_range
+        diameter_px = (lo + (hi - lo) * torch.sigmoid(self.ends[:, 2])) * cam.height
+        depth = cam.fy / diameter_px  # a unit-diameter object spans f / z pixels
+        return cam.unproject(torch.stack((u, v), -1), depth)
+
+    def omega(self) -> torch.Tensor:
+        return cap_rotation(self.omega_raw, self.max_angle)
+
+    def forward(self, taus: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rotations (T, 3, 3) and positions (T, 3) at exposure times ``taus`` (T,)."""
+        ends = self.positions()
+        rot0 = quaternion_to_matrix(self.quat0)
+        return exposure_rotations(rot0, self.omega(), taus), ends[0] + taus[:, None] * (ends[1] - ends[0])
+
+    def start_at_streak(self, streak: Streak) -> None:
+        """Put the start and end of the motion at the streak's ends, sized to its width."""
+        cam, (lo, hi) = self.camera, self.size_range
+        with torch.no_grad():
+            uv = torch.stack((streak.start, streak.end)).to(self.ends)
+            ndc = torch.stack(((uv[:, 0] + 0.5) * 2 / cam.width - 1, (uv[:, 1] + 0.5) * 2 / cam.height - 1), -1)
+            frac = min(max((streak.diameter / cam.height - lo) / (hi - lo), 1e-3), 1 - 1e-3)
+            self.ends[:, :2] = torch.atanh(ndc.clamp(-0.999, 0.999))
+            self.ends[:, 2] = math.log(frac / (1 - frac))
+
+    def motion(self) -> Motion:
+        with torch.no_grad():
+            ends = self.positions()
+            return Motion(ends[0], ends[1] - ends[0], quaternion_to_matrix(self.quat0), self.omega())
+
+    def load_motion(self, motion: Motion) -> None:
+        """Set the parameters to reproduce ``motion`` (clamped into the crop's bounds)."""
+
+        cam, (lo, hi) = self.camera, self.size_range
+        with torch.no_grad():
+            ends = torch.stack((motion.x0, motion.x0 + motion.dx)).to(self.ends)
+            uv, depth = cam.project(ends)
+            ndc = torch.stack(((uv[:, 0] + 0.5) * 2 / cam.width - 1, (uv[:, 1] + 0.5) * 2 / cam.height - 1), -1)
+            frac = (cam.fy / depth / cam.height - lo) / (hi - lo)
+            frac = frac.clamp(1e-3, 1 - 1e-3)
+            self.ends.copy_(torch.cat((torch.atanh(ndc.clamp(-0.999, 0.999)), torch.logit(frac)[:, None]), -1))
+            self.quat0.copy_(axis_angle_to_quaternion(matrix_to_axis_angle(motion.rot0.to(self.quat0))))
+            omega = motion.omega.to(self.omega_raw)
+            norm = omega.norm().clamp(max=self.max_angle * 0.999)
+            scale = torch.atanh(norm / self.max_angle) * self.max_angle / norm.clamp_min(1e-12)
+            self.omega_raw.copy_(omega * scale if float(norm) > 1e-9 else omega)
