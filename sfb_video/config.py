@@ -52,17 +52,20 @@ class CropConfig:
     """Growth on each side, as a fraction of the box's shorter side (about one object radius)."""
     aspect: float = 4 / 3
     """Width / height of the crop (the paper's 320x240)."""
-    max_width: int = 320
+    max_width: int = 200
     """Crops wider than this are downsampled to it; smaller ones keep their native resolution."""
-    diff_threshold: float = 0.1
-    """||I - B||_2 above this marks the object (the difference mask D of L_D)."""
+    detect_threshold: float = 0.05
+    """sum_rgb |I - B| above this, largest blob, is the object region (as the SfB reference
+    detects it). It finds the box, starts the motion, normalises L_I and is the mask D of L_D:
+    the paper's D, ||I - B||_2 > 0.1, misses faint parts of a streak and so rewards shrinking
+    (on 6 generated frames: TIoU 0.57 with it, 0.73 with this one)."""
 
 
 @dataclass(frozen=True)
 class FitConfig:
     """Test-time optimisation of one blurred frame (paper, Sec. 3.2)."""
 
-    prototypes: tuple[str, ...] = ("sphere", "torus")
+    prototypes: tuple[str, ...] = ("sphere",)
     """Tried in turn from a cold start; the lowest image loss wins."""
     deform: bool = True
     """Optimise per-vertex offsets (off: the prototype keeps its shape)."""

@@ -19,7 +19,6 @@ import torch.nn.functional as F
 from sfb_video.checks import SfbError
 from sfb_video.config import CropConfig
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.model.losses import difference_mask
 
 Box = tuple[int, int, int, int]
 """(x0, y0, width, height) in full-frame pixels; (x0, y0) is the top-left pixel."""
@@ -34,29 +33,39 @@ class Crop:
         camera: the camera that renders exactly this crop at its working resolution.
         image: (3, h, w) the blurred frame, cropped and resized.
         background: (3, h, w) the background, likewise.
-        diff_mask: (h, w) the difference mask D.
+        object_mask: (h, w) the largest blob of sum_rgb |I - B| > ``detect_threshold``: the
+            object region, and the difference mask D of L_D.
     """
 
     box: Box
     camera: PinholeCamera
     image: torch.Tensor
     background: torch.Tensor
-    diff_mask: torch.Tensor
+    object_mask: torch.Tensor
+
+
+def largest_blob(mask: torch.Tensor) -> tuple[torch.Tensor, Box | None]:
+    """The largest 8-connected blob of a boolean (H, W) mask, and its box (None if empty)."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.cpu().numpy().astype(np.uint8), connectivity=8)
+    if count <= 1:
+        return torch.zeros_like(mask, dtype=torch.float32), None
+    best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    x, y, w, h, _ = (int(v) for v in stats[best])
+    return torch.from_numpy(labels == best).float().to(mask.device), (x, y, w, h)
+
+
+def object_region(image: torch.Tensor, background: torch.Tensor, threshold: float) -> torch.Tensor:
+    """Boolean (H, W) mask of sum_rgb |I - B| > threshold for (3, H, W) images."""
+    return (image - background).abs().sum(0) > threshold
 
 
 def find_object_box(image: torch.Tensor, background: torch.Tensor, threshold: float) -> Box | None:
-    """The box of the largest connected blob of D = ||I - B|| > threshold, or None if there is none.
+    """The box of the largest blob of sum_rgb |I - B| > threshold, or None if there is none.
 
     Args:
         image, background: (3, H, W) in [0, 1].
     """
-    mask = difference_mask(image, background, threshold).cpu().numpy().astype(np.uint8)
-    count, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    if count <= 1:
-        return None
-    best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    x, y, w, h, _ = (int(v) for v in stats[best])
-    return x, y, w, h
+    return largest_blob(object_region(image, background, threshold))[1]
 
 
 def crop_box(box: Box, frame_size: tuple[int, int], config: CropConfig) -> Box:
@@ -107,5 +116,5 @@ def make_crop(
         camera=camera.crop(x0, y0, cw, ch, out[0], out[1]),
         image=img,
         background=bgr,
-        diff_mask=difference_mask(img, bgr, config.diff_threshold),
+        object_mask=largest_blob(object_region(img, bgr, config.detect_threshold))[0],
     )

@@ -80,7 +80,7 @@ def _joint_loss(
     out = renderer(pose_vertices(vertices, rotations, positions), shape.topology, shape.texture())
     rendered = composite(out.rgb, out.alpha, crop.background)
     terms = {
-        "image": losses.image_loss(crop.image, rendered, crop.diff_mask),
+        "image": losses.image_loss(crop.image, rendered, crop.object_mask),
         "texture": losses.texture_tv(shape.texture()),
         "laplacian": losses.laplacian(vertices, shape.topology.edges),
     }
@@ -89,7 +89,7 @@ def _joint_loss(
         terms["silhouette"] = losses.silhouette_loss(masks, out.alpha)
         weights["silhouette"] = config.w_silhouette
     else:
-        terms["difference"] = losses.difference_loss(crop.diff_mask, out.alpha)
+        terms["difference"] = losses.difference_loss(crop.object_mask, out.alpha)
         weights["difference"] = config.w_difference
     total = sum(weights[k] * v for k, v in terms.items() if weights[k] != 0)
     record = {k: float(v.detach()) for k, v in terms.items()}
@@ -142,7 +142,7 @@ def _optimise(
 def _check_crop(crop: Crop) -> None:
     if not bool(torch.isfinite(crop.image).all() and torch.isfinite(crop.background).all()):
         raise SfbError("image or background contains NaN or infinite values")
-    if float(crop.diff_mask.sum()) == 0:
+    if float(crop.object_mask.sum()) == 0:
         raise NoObjectError("no object: the image does not differ from the background in the object box")
 
 
@@ -193,7 +193,7 @@ def fit_frame(
         if warm is not None:
             motion.load_motion(warm.motion)
         else:
-            motion.start_at_streak(streak_from_mask(crop.diff_mask))
+            motion.start_at_streak(streak_from_mask(crop.object_mask))
         iterations = config.warm_iterations if warm is not None else config.iterations
         params, record, rendered, curve = _optimise(
             crop, shape, motion, iterations, warm is not None, masks, config, render_config, on_step

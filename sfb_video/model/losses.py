@@ -27,12 +27,7 @@ def soft_iou(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return inter / union.clamp_min(1e-8)
 
 
-def difference_mask(image: torch.Tensor, background: torch.Tensor, threshold: float) -> torch.Tensor:
-    """D = ||I - B||_2 > threshold over channels: (3, H, W) pair -> (H, W) float mask."""
-    return ((image - background).norm(dim=0) > threshold).float()
-
-
-def difference_loss(diff_mask: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+def difference_loss(mask: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
     """L_D: 1 - IoU between D (H, W) and the region the object sweeps, from alpha (T, 1, H, W).
 
     The appendix binarises the mean silhouette, [mean_t A_t > 0], i.e. the union of the
@@ -40,7 +35,7 @@ def difference_loss(diff_mask: torch.Tensor, alpha: torch.Tensor) -> torch.Tenso
     mean itself would reward a static opaque blob over a streak, whose mean coverage is low.)
     """
     swept = 1 - (1 - alpha[:, 0]).prod(0)
-    return 1 - soft_iou(diff_mask, swept)
+    return 1 - soft_iou(mask, swept)
 
 
 def silhouette_loss(masks: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:

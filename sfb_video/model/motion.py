@@ -70,22 +70,27 @@ class Streak:
 
 
 def streak_from_mask(mask: torch.Tensor) -> Streak:
-    """Fit a capsule to the (h, w) mask by its second moments.
+    """Fit a capsule (a disc of diameter d swept along a segment) to the (h, w) mask.
 
-    A disc of diameter d has variance d^2 / 16 along any axis, which gives d from the minor
-    axis; a straight path of length L adds L^2 / 12 along the major axis.
+    The major axis comes from the second moments. A capsule of extent E along it has area
+    A = (E - d) d + pi d^2 / 4, which gives d; the path ends lie d / 2 inside the extent.
     """
     ys, xs = torch.nonzero(mask > 0.5, as_tuple=True)
     if xs.numel() < 2:
         raise ValueError("the mask is empty: no streak to start from")
     pts = torch.stack((xs, ys), -1).to(torch.float64)
     centre = pts.mean(0)
-    evals, evecs = torch.linalg.eigh(torch.cov(pts.T))
-    diameter = 4 * float(evals[0].clamp_min(0.25).sqrt())
-    path = float((12 * (evals[1] - diameter**2 / 16)).clamp_min(0).sqrt())
+    _, evecs = torch.linalg.eigh(torch.cov(pts.T))
+    axis = evecs[:, 1]
+    along = (pts - centre) @ axis
+    # The span of pixel centres, not +1: that matches the area of the sampled shape best.
+    extent = float(along.max() - along.min())
+    k = 1 - math.pi / 4
+    diameter = (extent - math.sqrt(max(extent**2 - 4 * k * pts.shape[0], 0.0))) / (2 * k)
+    lo, hi = float(along.min()) + diameter / 2, float(along.max()) - diameter / 2
     # A minimal separation keeps start and end apart, so their gradients differ from the first step.
-    half = 0.5 * max(path, 1.0) * evecs[:, 1]
-    return Streak((centre - half).float(), (centre + half).float(), diameter)
+    mid, half = (lo + hi) / 2, max((hi - lo) / 2, 0.5)
+    return Streak((centre + (mid - half) * axis).float(), (centre + (mid + half) * axis).float(), diameter)
 
 
 def cap_rotation(raw: torch.Tensor, max_angle: float) -> torch.Tensor:

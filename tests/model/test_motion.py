@@ -1,0 +1,78 @@
+import math
+
+import pytest
+import torch
+
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.geometry.rotation import axis_angle_to_matrix, rotation_angle_deg
+from sfb_video.model.motion import Motion, MotionParams, cap_rotation, streak_from_mask
+
+CAMERA = PinholeCamera.from_fov(320, 240, 45.0).crop(60, 40, 160, 120, 160, 120)
+
+
+def test_positions_stay_inside_the_crop_and_the_size_range() -> None:
+    params = MotionParams(CAMERA, (0.05, 1.0), 120.0, 0.4)
+    with torch.no_grad():
+        params.ends.copy_(torch.randn(2, 3) * 10)
+    uv, depth = CAMERA.project(params.positions())
+    # tanh saturates to the crop's edge in float32; the centre never leaves the crop.
+    assert bool(((uv[:, 0] >= -0.5) & (uv[:, 0] <= 159.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] <= 119.5)).all())
+    diameter_frac = CAMERA.fy / depth / CAMERA.height
+    assert bool(((diameter_frac >= 0.05 - 1e-6) & (diameter_frac <= 1.0 + 1e-6)).all())
+
+
+def test_rotation_cap_is_smooth_and_bounded() -> None:
+    cap = math.radians(120)
+    small = torch.tensor([1e-3, -2e-3, 0.5e-3])
+    assert torch.allclose(cap_rotation(small, cap), small, rtol=1e-4)
+    assert cap_rotation(torch.tensor([50.0, 0.0, 0.0]), cap).norm() <= cap + 1e-6
+    assert cap_rotation(torch.tensor([2.0, 0.0, 0.0]), cap).norm() < 2.0
+
+
+def test_load_motion_round_trips() -> None:
+    motion = Motion(
+        x0=CAMERA.unproject(torch.tensor([40.0, 70.0]), torch.tensor(5.0)),
+        dx=torch.tensor([0.8, -0.3, 0.4]),
+        rot0=axis_angle_to_matrix(torch.tensor([0.3, -0.2, 1.0])),
+        omega=torch.tensor([0.0, 1.2, 0.4]),
+    )
+    params = MotionParams(CAMERA, (0.05, 1.0), 120.0, 0.4)
+    params.load_motion(motion)
+    back = params.motion()
+    assert torch.allclose(back.x0, motion.x0, atol=1e-4)
+    assert torch.allclose(back.dx, motion.dx, atol=1e-4)
+    assert rotation_angle_deg(back.rot0, motion.rot0) < 1e-2
+    assert torch.allclose(back.omega, motion.omega, atol=1e-4)
+
+
+def test_reversed_motion_runs_the_same_path_backwards() -> None:
+    motion = Motion(
+        torch.tensor([0.0, 0.0, 4.0]), torch.tensor([1.0, 0.5, 0.0]), torch.eye(3), torch.tensor([0, 1.0, 0])
+    )
+    taus = torch.tensor([0.0, 0.3, 1.0])
+    rot_f, pos_f = motion.at(taus)
+    rot_b, pos_b = motion.reversed().at(1 - taus)
+    assert torch.allclose(pos_f, pos_b, atol=1e-6)
+    assert torch.allclose(rot_f, rot_b, atol=1e-5)
+
+
+def test_streak_from_a_capsule_mask() -> None:
+    ys, xs = torch.meshgrid(torch.arange(100.0), torch.arange(200.0), indexing="ij")
+    a, b, r = torch.tensor([50.0, 40.0]), torch.tensor([150.0, 60.0]), 12.0
+    ab = b - a
+    lam = (((torch.stack((xs, ys), -1) - a) @ ab) / ab.dot(ab)).clamp(0, 1)
+    closest = a + lam[..., None] * ab
+    mask = ((torch.stack((xs, ys), -1) - closest).norm(dim=-1) <= r).float()
+    streak = streak_from_mask(mask)
+    ends = sorted([streak.start.tolist(), streak.end.tolist()])
+    assert ends[0] == pytest.approx(a.tolist(), abs=3.0)
+    assert ends[1] == pytest.approx(b.tolist(), abs=3.0)
+    assert streak.diameter == pytest.approx(2 * r, rel=0.05)
+
+
+def test_streak_of_a_still_disc_has_the_disc_diameter() -> None:
+    ys, xs = torch.meshgrid(torch.arange(60.0), torch.arange(60.0), indexing="ij")
+    mask = (((xs - 30) ** 2 + (ys - 25) ** 2) <= 15**2).float()
+    streak = streak_from_mask(mask)
+    assert streak.diameter == pytest.approx(30, rel=0.05)
+    assert (streak.end - streak.start).norm() <= 2.0
