@@ -81,6 +81,57 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_box(text: str | None) -> tuple[int, int, int, int] | None:
+    if text is None:
+        return None
+    try:
+        x, y, w, h = (int(v) for v in text.split(","))
+    except ValueError:
+        raise SfbError(f"--box must be x,y,width,height in pixels, got {text!r}") from None
+    return x, y, w, h
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from sfb_video.crop import find_object_box, make_crop
+    from sfb_video.export import write_fit
+    from sfb_video.fitter import NoObjectError, fit_frame
+    from sfb_video.geometry.camera import PinholeCamera
+    from sfb_video.imageio import read_image
+
+    config = load_config(args.config, args.set)
+    device = resolve_device(args.device)
+    image, background = read_image(args.image), read_image(args.background)
+    if image.shape != background.shape:
+        raise SfbError(f"image {args.image} and background {args.background} differ in size")
+    camera = PinholeCamera.from_fov(image.shape[2], image.shape[1], config.camera.fov_y_deg)
+    box = _parse_box(args.box) or find_object_box(image, background, config.crop.detect_threshold)
+    if box is None:
+        raise NoObjectError(f"no object: {args.image} does not differ from its background")
+    crop = make_crop(image.to(device), background.to(device), box, camera, config.crop)
+    out = Path(args.out or f"runs/{Path(args.image).stem}")
+    folder = OutputFolder(out, args.overwrite)
+    steps = config.fit.iterations * len(config.fit.prototypes)
+    # disable=None: no bar when stderr is not a terminal (logs, CI).
+    with tqdm(total=steps, desc="fit", unit="step", disable=True if args.quiet else None, leave=False) as bar:
+
+        def on_step(step: int, losses: dict[str, float]) -> None:
+            bar.update(1)
+            bar.set_postfix(L_I=f"{losses['image']:.4f}")
+
+        fit = fit_frame(crop, config.fit, config.render, on_step=on_step)
+    with folder as tmp:
+        write_fit(tmp, fit, crop, args.tsr, config.render)
+        atomic_write_bytes(tmp / "config.yaml", yaml.safe_dump(config_to_dict(config), sort_keys=False).encode())
+    if not args.quiet:
+        print(
+            f"wrote {out}/: prototype {fit.prototype}, L_I {fit.losses['image']:.4f}, "
+            f"{fit.iterations} steps in {fit.seconds:.1f} s; mesh.glb, tsr.png, reconstruction.png, fit.json"
+        )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sfb-video", description="Shape from Blur for videos of fast moving objects.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -94,6 +145,13 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", parents=[common], help="render a prototype tumbling through one exposure")
     demo.add_argument("--out", default="runs/demo", help="output folder")
     demo.set_defaults(func=cmd_demo)
+    fit = sub.add_parser("fit", parents=[common], help="recover the shape and motion in one blurred image")
+    fit.add_argument("--image", required=True, help="the blurred frame")
+    fit.add_argument("--background", required=True, help="the same view without the object")
+    fit.add_argument("--box", help="object box x,y,width,height (default: the largest blob of |I - B|)")
+    fit.add_argument("--tsr", type=int, default=8, help="sub-frames to render for temporal super-resolution")
+    fit.add_argument("--out", help="output folder (default: runs/<image name>)")
+    fit.set_defaults(func=cmd_fit)
     return parser
 
 
