@@ -7,6 +7,7 @@ with status 2; Ctrl-C exits with 130 and leaves no half-written output.
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import sys
 import tempfile
@@ -38,16 +39,19 @@ class OutputFolder:
     """A run folder written in a hidden sibling and moved into place only when complete."""
 
     def __init__(self, path: Path, overwrite: bool) -> None:
+        # Checked up front, so a long job does not end in an error it could have shown first.
         self.path = path
         if path.exists() and not overwrite:
             raise SfbError(f"output folder {path} already exists; pass --overwrite to replace it")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            self.tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.partial-"))
         except OSError as exc:
             raise SfbError(f"cannot write to output folder {path}: {exc.strerror}") from None
+        if not os.access(path.parent, os.W_OK):
+            raise SfbError(f"cannot write to output folder {path}: permission denied")
 
     def __enter__(self) -> Path:
+        self.tmp = Path(tempfile.mkdtemp(dir=self.path.parent, prefix=f".{self.path.name}.partial-"))
         return self.tmp
 
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:

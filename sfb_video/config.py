@@ -80,7 +80,9 @@ class FitConfig:
     """... by more than this fraction."""
     texture_size: int = 100
     size_range: tuple[float, float] = (0.05, 1.0)
-    """Apparent diameter bounds, as fractions of the crop height (paper: 5% to 100%)."""
+    """Apparent diameter bounds at the start, as fractions of the crop height (paper: 5% to 100%)."""
+    max_size_ratio: float = 1.5
+    """Bound on how much the apparent size may change within one exposure (end / start)."""
     init_size: float = 0.4
     """Initial apparent diameter, as a fraction of the crop height."""
     max_rotation_deg: float = 120.0

@@ -189,7 +189,9 @@ def fit_frame(
                 shape.texture_logits.copy_(torch.logit(warm.texture.to(device).clamp(1e-4, 1 - 1e-4)))
         else:
             shape = ShapeParams(proto.to(device), topology, config.texture_size, config.deform).to(device)
-        motion = MotionParams(crop.camera, config.size_range, config.max_rotation_deg, config.init_size).to(device)
+        motion = MotionParams(
+            crop.camera, config.size_range, config.max_size_ratio, config.max_rotation_deg, config.init_size
+        ).to(device)
         if warm is not None:
             motion.load_motion(warm.motion)
         else:

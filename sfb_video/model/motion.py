@@ -3,9 +3,12 @@
 Convention:
     Positions are parametrised in the crop the fit works in, as the paper does for the image:
     the centre of mass projects to crop NDC tanh(a), tanh(b) in (-1, 1) (so it stays inside
-    the crop), and its apparent diameter is a fraction of the crop height between
-    ``size_range`` (paper: 5% to 100% of the field of view), which fixes its depth. The 3D
-    start and end positions follow through the crop camera, and x(tau) = x0 + tau * dx.
+    the crop), and its apparent diameter at the start is a fraction of the crop height between
+    ``size_range`` (paper: 5% to 100% of the field of view), which fixes its depth. The end's
+    apparent size is the start's times a factor within 1 / ``max_size_ratio`` ..
+    ``max_size_ratio``: without that bound a fit can fade an unexplained streak out by sending
+    one end far away. The 3D start and end positions follow through the crop camera, and
+    x(tau) = x0 + tau * dx.
     R(tau) = exp(tau * omega) @ R0 with R0 a WXYZ quaternion and |omega| smoothly capped at
     ``max_rotation_deg`` (paper: 120 degrees).
 """
@@ -107,7 +110,8 @@ class MotionParams(torch.nn.Module):
 
     Args:
         camera: the crop camera the fit renders in.
-        size_range: (min, max) apparent diameter as a fraction of the crop height.
+        size_range: (min, max) apparent diameter at the start, as a fraction of the crop height.
+        max_size_ratio: bound on the ratio of the apparent sizes at the end and the start.
         max_rotation_deg: cap on the rotation during the exposure.
         init_size: initial apparent diameter fraction.
     """
@@ -116,17 +120,20 @@ class MotionParams(torch.nn.Module):
         self,
         camera: PinholeCamera,
         size_range: tuple[float, float],
+        max_size_ratio: float,
         max_rotation_deg: float,
         init_size: float,
     ) -> None:
         super().__init__()
         self.camera = camera
         self.size_range = size_range
+        self.log_ratio = math.log(max_size_ratio)
         self.max_angle = math.radians(max_rotation_deg)
         lo, hi = size_range
         s = min(max((init_size - lo) / (hi - lo), 1e-3), 1 - 1e-3)
-        # Start and end: crop-NDC (a, b) and a size logit each; both start at the crop centre.
-        self.ends = torch.nn.Parameter(torch.tensor([[0.0, 0.0, math.log(s / (1 - s))]] * 2))
+        # Start and end: crop-NDC (a, b) each; row 0 holds the start's size logit, row 1 the
+        # end's size ratio (through tanh). Both start at the crop centre, at the same size.
+        self.ends = torch.nn.Parameter(torch.tensor([[0.0, 0.0, math.log(s / (1 - s))], [0.0, 0.0, 0.0]]))
         self.quat0 = torch.nn.Parameter(torch.tensor([1.0, 0.0, 0.0, 0.0]))
         self.omega_raw = torch.nn.Parameter(torch.zeros(3))
 
@@ -137,7 +144,8 @@ class MotionParams(torch.nn.Module):
         u = (ndc[:, 0] + 1) * cam.width / 2 - 0.5
         v = (ndc[:, 1] + 1) * cam.height / 2 - 0.5
         lo, hi = self.size_range
-        diameter_px = (lo + (hi - lo) * torch.sigmoid(self.ends[:, 2])) * cam.height
+        start_px = (lo + (hi - lo) * torch.sigmoid(self.ends[0, 2])) * cam.height
+        diameter_px = torch.stack((start_px, start_px * torch.exp(self.log_ratio * torch.tanh(self.ends[1, 2]))))
         depth = cam.fy / diameter_px  # a unit-diameter object spans f / z pixels
         return cam.unproject(torch.stack((u, v), -1), depth)
 
@@ -158,7 +166,8 @@ class MotionParams(torch.nn.Module):
             ndc = torch.stack(((uv[:, 0] + 0.5) * 2 / cam.width - 1, (uv[:, 1] + 0.5) * 2 / cam.height - 1), -1)
             frac = min(max((streak.diameter / cam.height - lo) / (hi - lo), 1e-3), 1 - 1e-3)
             self.ends[:, :2] = torch.atanh(ndc.clamp(-0.999, 0.999))
-            self.ends[:, 2] = math.log(frac / (1 - frac))
+            self.ends[0, 2] = math.log(frac / (1 - frac))
+            self.ends[1, 2] = 0.0
 
     def motion(self) -> Motion:
         with torch.no_grad():
@@ -173,9 +182,10 @@ class MotionParams(torch.nn.Module):
             ends = torch.stack((motion.x0, motion.x0 + motion.dx)).to(self.ends)
             uv, depth = cam.project(ends)
             ndc = torch.stack(((uv[:, 0] + 0.5) * 2 / cam.width - 1, (uv[:, 1] + 0.5) * 2 / cam.height - 1), -1)
-            frac = (cam.fy / depth / cam.height - lo) / (hi - lo)
-            frac = frac.clamp(1e-3, 1 - 1e-3)
-            self.ends.copy_(torch.cat((torch.atanh(ndc.clamp(-0.999, 0.999)), torch.logit(frac)[:, None]), -1))
+            frac = ((cam.fy / depth[0] / cam.height - lo) / (hi - lo)).clamp(1e-3, 1 - 1e-3)
+            ratio = (torch.log(depth[0] / depth[1]) / self.log_ratio).clamp(-0.999, 0.999)
+            size = torch.stack((torch.logit(frac), torch.atanh(ratio)))
+            self.ends.copy_(torch.cat((torch.atanh(ndc.clamp(-0.999, 0.999)), size[:, None]), -1))
             self.quat0.copy_(axis_angle_to_quaternion(matrix_to_axis_angle(motion.rot0.to(self.quat0))))
             omega = motion.omega.to(self.omega_raw)
             norm = omega.norm().clamp(max=self.max_angle * 0.999)

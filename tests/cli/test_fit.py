@@ -64,4 +64,29 @@ def test_bad_fit_inputs_give_one_line_errors(
     assert main(["fit", "--image", image, "--background", bgr, "--out", str(tmp_path / "o"), *FAST, *extra]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and message in err
-    assert not (tmp_path / "o").exists()
+    leftovers = [p.name for p in tmp_path.iterdir() if p.name == "o" or p.name.startswith(".o.")]
+    assert not leftovers, "no output, partial or not, may be left behind"
+
+
+def test_interrupted_fit_exits_130_and_leaves_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import sfb_video.fitter
+
+    def interrupted(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sfb_video.fitter, "fit_frame", interrupted)
+    background = np.zeros((60, 80, 3), np.uint8)
+    image = background.copy()
+    image[20:30, 20:50] = 255
+    args = [
+        "fit",
+        "--image",
+        _write(tmp_path / "im.png", image),
+        "--background",
+        _write(tmp_path / "b.png", background),
+    ]
+    assert main([*args, "--out", str(tmp_path / "o"), *FAST]) == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert not [p.name for p in tmp_path.iterdir() if p.name == "o" or p.name.startswith(".o.")]
