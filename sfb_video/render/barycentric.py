@@ -4,6 +4,12 @@ from __future__ import annotations
 
 import torch
 
+MIN_AREA_PX2 = 1e-4
+"""Faces whose projected (doubled) area is below this many square pixels are not rasterised.
+
+Below it, float32 cancellation in the barycentric planes of pixels ~100 px from the origin can
+make their sum vanish (infinite weights); such slivers cover no pixel centre in practice."""
+
 
 def cross2(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """z component of the cross product of (*, 2) vectors."""

@@ -23,7 +23,7 @@ from sfb_video.checks import check_in_front
 from sfb_video.config import RenderConfig
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology, check_vertices
-from sfb_video.render.barycentric import cross2, segment_closest
+from sfb_video.render.barycentric import MIN_AREA_PX2, cross2, segment_closest
 from sfb_video.render.fragments import Fragments
 
 
@@ -87,8 +87,9 @@ def _scanline_spans(tri: torch.Tensor, width: int, height: int) -> tuple[torch.T
     s = (y[:, None] - p[..., 1]) / dy
     crosses = (s >= 0) & (s <= 1) & (dy != 0)
     x = p[..., 0] + s * (q[..., 0] - p[..., 0])
-    x_left = torch.where(crosses, x, torch.full_like(x, math.inf)).amin(1).ceil().clamp_min(0)
-    x_right = torch.where(crosses, x, torch.full_like(x, -math.inf)).amax(1).floor().clamp_max(width - 1)
+    # Finite bounds before casting: a row that no edge crosses (rounding) gets an empty span.
+    x_left = torch.where(crosses, x, torch.full_like(x, math.inf)).amin(1).ceil().clamp(0, width)
+    x_right = torch.where(crosses, x, torch.full_like(x, -math.inf)).amax(1).floor().clamp(-1, width - 1)
     lo = torch.stack((x_left, y), -1).long()
     hi = torch.stack((x_right.clamp_min(x_left - 1), y), -1).long()
     owner, xy = _enumerate_boxes(lo, hi)
@@ -127,7 +128,7 @@ def _visible_faces(
     area = cross2(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
     front = area < 0
     # A ray enters a closed surface through a front face first, so back faces never win there.
-    keep = (area.abs() > 1e-9) & (front | (not topology.is_closed()))
+    keep = (area.abs() > MIN_AREA_PX2) & (front | (not topology.is_closed()))
     t_idx, f_idx = torch.nonzero(keep, as_tuple=True)
     tri = tri[t_idx, f_idx]
     planes = _inverse_depth_planes(tri, 1.0 / depth[t_idx[:, None], faces[f_idx]])
@@ -143,21 +144,30 @@ def _visible_faces(
     return key[win], owner[win], candidates, zbuf.reshape(num_t, height, width), front
 
 
-def _weight_planes(uv: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, cand: torch.Tensor) -> torch.Tensor:
-    """Planes (K, 3, 3) whose ratios give perspective-correct barycentrics, with gradient.
+def _weight_planes(
+    uv: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, cand: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Planes whose ratios give perspective-correct barycentrics, with gradient.
 
     Screen barycentric l_i is affine in the pixel (u, v), and the 3D weight of corner i is
     (l_i / z_i) / sum_j (l_j / z_j). Up to the triangle's area, which cancels in that ratio,
-    l_i = (q_v - r_v) u + (r_u - q_u) v + (q_u r_v - q_v r_u) with (q, r) the next two corners.
-    Row i holds those three coefficients divided by z_i.
+    l_i = (q_v - r_v) du + (r_u - q_u) dv + (q_u r_v - q_v r_u) with (q, r) the next two corners,
+    all taken relative to the face's first corner: in absolute pixel coordinates the constant
+    term cancels catastrophically in float32 (about 170 * 126 - 126 * 171 for a small face).
+
+    Returns:
+        planes: (K, 3, 3), row i holding those three coefficients divided by z_i.
+        origin: (K, 2) the first corner, which (du, dv) are measured from.
     """
     corners = faces[cand[:, 1]]
     tri = uv[cand[:, :1], corners]  # (K, 3, 2)
-    q, r = tri.roll(-1, dims=1), tri.roll(-2, dims=1)
+    origin = tri[:, 0]
+    local = tri - origin[:, None]
+    q, r = local.roll(-1, dims=1), local.roll(-2, dims=1)
     coef = torch.stack(
         (q[..., 1] - r[..., 1], r[..., 0] - q[..., 0], q[..., 0] * r[..., 1] - q[..., 1] * r[..., 0]), -1
     )
-    return coef / depth[cand[:, :1], corners][..., None]
+    return coef / depth[cand[:, :1], corners][..., None], origin
 
 
 def _contour_band(
@@ -238,10 +248,11 @@ def rasterize(
 
     # Inside: barycentrics of the pixel centre in its covering face, now with gradient.
     face_in = candidates[cand_in, 1]
-    plane = _weight_planes(uv, depth, faces, candidates)[cand_in]  # (P, 3, 3)
-    u_in = (pix_in % width).to(uv.dtype)[:, None]
-    v_in = ((pix_in // width) % height).to(uv.dtype)[:, None]
-    bary_in = plane[..., 0] * u_in + plane[..., 1] * v_in + plane[..., 2]
+    planes, origin = _weight_planes(uv, depth, faces, candidates)
+    plane, origin = planes[cand_in], origin[cand_in]  # (P, 3, 3), (P, 2)
+    du = (pix_in % width).to(uv.dtype)[:, None] - origin[:, :1]
+    dv = ((pix_in // width) % height).to(uv.dtype)[:, None] - origin[:, 1:]
+    bary_in = plane[..., 0] * du + plane[..., 1] * dv + plane[..., 2]
     bary_in = bary_in / bary_in.sum(-1, keepdim=True)
 
     # Band: the closest point on the contour edge, expressed in the edge's front face.

@@ -15,6 +15,7 @@ from sfb_video.config import RenderConfig
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology, check_vertices
 from sfb_video.render.barycentric import (
+    MIN_AREA_PX2,
     cross2,
     perspective_correct,
     screen_barycentric,
@@ -47,7 +48,7 @@ def rasterize_reference(
         z_corner = depth[t, faces]  # (F, 3)
         area = cross2(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         bary = screen_barycentric(pixels, tri[None])  # (HW, F, 3)
-        inside = (bary.detach() >= 0).all(-1) & (area.detach().abs() > 1e-9)
+        inside = (bary.detach() >= 0).all(-1) & (area.detach().abs() > MIN_AREA_PX2)
         z = 1.0 / (bary.detach() / z_corner.detach()).sum(-1)
         z = torch.where(inside, z, torch.full_like(z, math.inf))
         zmin, face_in = z.min(1)

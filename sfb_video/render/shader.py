@@ -50,8 +50,9 @@ def sample_texture(fragments: Fragments, face_uv_coords: torch.Tensor, texture: 
         (T, 3, H, W) colours, 0 at pixels that show no face.
     """
     uv = torch.bmm(fragments.bary[:, None, :], face_uv_coords[fragments.face]).squeeze(1)  # (P, 2)
-    # UV (0, 0) is the texture's top-left corner, which grid_sample calls (-1, -1).
-    grid = (2 * uv - 1).reshape(1, 1, -1, 2)
+    # UV (0, 0) is the texture's top-left corner, which grid_sample calls (-1, -1). The grid is
+    # made finite and clamped: grid_sample's CPU backward writes out of bounds on NaN coordinates.
+    grid = torch.nan_to_num(2 * uv - 1).clamp(-1.0, 1.0).reshape(1, 1, -1, 2)
     colour = F.grid_sample(texture[None], grid, mode="bilinear", padding_mode="border", align_corners=False)
     return fragments.dense(colour[0, :, 0].T).permute(0, 3, 1, 2)
 

@@ -120,3 +120,19 @@ def test_bad_texture_is_rejected() -> None:
     verts, topo = load_prototype("sphere")
     with pytest.raises(ValueError, match="texture"):
         MeshRenderer(PinholeCamera.from_fov(32, 24, 45.0))(verts[None] + 3, topo, torch.rand(4, 4))
+
+
+def test_sliver_far_from_the_origin_gives_finite_weights_and_gradients() -> None:
+    # Captured from a fit: a sliver face ~170 px from the pixel origin, whose barycentric planes
+    # in absolute pixel coordinates cancelled to infinite weights (and crashed grid_sample).
+    cam = PinholeCamera.from_fov(320, 240, 45.0)
+    uv = torch.tensor([[171.0561, 125.9175], [171.2083, 125.6908], [170.6598, 126.5041]])
+    verts = cam.unproject(uv, torch.tensor([7.1955, 7.1447, 7.1701]))[None].requires_grad_()
+    faces = torch.tensor([[0, 1, 2]])
+    topo = MeshTopology.build(faces, torch.rand(3, 2), faces)
+    frags = rasterize(verts, topo, cam, RenderConfig())
+    assert bool(frags.inside.any())
+    assert bool(torch.isfinite(frags.bary).all())
+    assert bool(((frags.bary[frags.inside] > -1e-3) & (frags.bary[frags.inside] < 1 + 1e-3)).all())
+    (frags.bary.sum() + frags.dist2.sum()).backward()
+    assert bool(torch.isfinite(verts.grad).all())
