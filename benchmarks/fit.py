@@ -61,7 +61,7 @@ def main() -> None:
         print(f"\n{name}\n\n{header}\n|---|---:|---:|---:|---:|---:|---:|---:|", flush=True)
         totals[name] = run_variant(config, args.seeds, show_frames=True)
         print(_row("**mean**", totals[name]), flush=True)
-    print(f"\nsummary (means over all frames)\n\n{header.replace('frame', 'variant')}")
+    print(f"\nsummary (means over all frames)\n\n{header.replace('| frame |', '| variant |')}")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for name, values in totals.items():
         print(_row(name, values))

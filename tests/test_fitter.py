@@ -1,8 +1,8 @@
 """The fitter on generated frames with ground truth (fast preset, 160x120 frames).
 
 Thresholds come from measurement (see benchmarks/fit.py for the full-size table): on these
-four frames the full loss reached mean TIoU 0.74, PSNR 29.7 dB and translation error 0.71
-object sizes; with L_I switched off PSNR fell to 25.4 dB and the error rose to 1.6, which the
+four frames the full loss reached mean TIoU 0.76, PSNR 28.8 dB and translation error 0.43
+object sizes; with L_I switched off PSNR fell to 25.5 dB and the error rose to 1.45, which the
 thresholds below must and do catch.
 """
 
@@ -23,7 +23,7 @@ from sfb_video.model.motion import Motion
 from sfb_video.synth import ClipSpec, generate_clip
 
 FRAMES = (("ball", 0), ("box", 0), ("ball", 2), ("box", 2))
-MIN_TIOU, MIN_PSNR, MAX_TRANSLATION = 0.68, 27.5, 1.0
+MIN_TIOU, MIN_PSNR, MAX_TRANSLATION = 0.72, 27.5, 0.6
 
 
 def _clip(shape: str, seed: int):
@@ -55,14 +55,15 @@ def test_thresholds_catch_a_fit_without_the_image_loss() -> None:
 
 
 def test_true_subframe_masks_fit_better_than_the_difference_mask(full: dict[str, float]) -> None:
-    # Stands in for DeFMO's masks (paper, Table 2: L_S beats L_D); measured 0.85 vs 0.74.
+    # Stands in for DeFMO's masks (paper, Table 2: L_S beats L_D); measured 0.87 vs 0.76.
     with_masks = _means([], use_true_masks=True)
     assert with_masks["tiou"] >= full["tiou"] + 0.05
 
 
 def test_warm_start_from_the_truth_stays_there() -> None:
     config = load_config("fast")
-    clip = _clip("box", 0)
+    # The ball, which the sphere prototype can match: from the truth a fit has no reason to leave.
+    clip = _clip("ball", 0)
     crop = synthetic_crop(clip, 0, config)
     truth = clip.truth[0].motion
     motion = Motion(*(torch.from_numpy(a).float() for a in (truth.x0, truth.dx, truth.rotation, truth.omega)))
@@ -72,8 +73,8 @@ def test_warm_start_from_the_truth_stays_there() -> None:
     )
     score = score_fit(warm, clip, 0, config)
     assert warm.iterations <= config.fit.warm_iterations
-    assert score.translation_err <= 0.7  # measured 0.66 from the true motion
-    assert score.tiou >= 0.75
+    assert score.translation_err <= 0.55  # measured 0.45
+    assert score.tiou >= 0.85  # measured 0.93
 
 
 def test_fit_is_deterministic() -> None:
