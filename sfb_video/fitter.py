@@ -157,7 +157,7 @@ def fit_frame(
     """Fit the textured mesh and motion that explain one blurred crop.
 
     Args:
-        crop: the frame's working crop (image, background, camera, difference mask).
+        crop: the frame's working crop (image, background, camera, object mask).
         config: iterations, learning rate, loss weights, prototypes.
         render_config: time steps and soft-silhouette sharpness.
         warm: start from here (one prototype, ``warm_iterations``, early stop) instead of cold.
