@@ -19,7 +19,7 @@ import yaml
 
 from sfb_video import __version__
 from sfb_video.checks import SfbError
-from sfb_video.config import config_to_dict, load_config
+from sfb_video.config import Config, config_to_dict, load_config
 from sfb_video.imageio import atomic_write_bytes, write_image
 
 
@@ -68,6 +68,11 @@ class OutputFolder:
             self.tmp.rename(self.path)
 
 
+def write_config(path: Path, config: Config) -> None:
+    """Save the resolved config beside a run's outputs, so the run can be replayed."""
+    atomic_write_bytes(path, yaml.safe_dump(config_to_dict(config), sort_keys=False).encode())
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from sfb_video.demo import run_demo
 
@@ -77,7 +82,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         write_image(folder / "blurred.png", result.blurred)
         write_image(folder / "background.png", result.background)
         write_image(folder / "subframes.png", torch.cat(list(result.subframes), dim=2))
-        atomic_write_bytes(folder / "config.yaml", yaml.safe_dump(config_to_dict(config), sort_keys=False).encode())
+        write_config(folder / "config.yaml", config)
     if not args.quiet:
         print(
             f"wrote {args.out}/: blurred.png (one exposure), subframes.png ({len(result.subframes)} sharp sub-frames)"
@@ -127,7 +132,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         fit = fit_frame(crop, config.fit, config.render, on_step=on_step)
     with folder as tmp:
         write_fit(tmp, fit, crop, args.tsr, config.render)
-        atomic_write_bytes(tmp / "config.yaml", yaml.safe_dump(config_to_dict(config), sort_keys=False).encode())
+        write_config(tmp / "config.yaml", config)
     if not args.quiet:
         print(
             f"wrote {out}/: prototype {fit.prototype}, L_I {fit.losses['image']:.4f}, "

@@ -9,10 +9,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 import torch
-from skimage import data as skdata
 
 from sfb_video.config import Config
 from sfb_video.geometry.camera import PinholeCamera
@@ -21,6 +19,7 @@ from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.geometry.rotation import axis_angle_to_matrix, exposure_rotations
 from sfb_video.model.formation import composite, exposure_times, subframes
 from sfb_video.render import MeshRenderer
+from sfb_video.synth.backgrounds import make_background
 
 
 @dataclass(frozen=True)
@@ -43,21 +42,6 @@ def demo_texture(size: int) -> torch.Tensor:
     return texture * (1 - stripe) + 0.1 * stripe
 
 
-def demo_background(width: int, height: int) -> torch.Tensor:
-    """(3, H, W) scikit-image's coffee photo, cropped to the aspect ratio and resized."""
-    photo = skdata.coffee()
-    h, w = photo.shape[:2]
-    aspect = width / height
-    if w / h > aspect:
-        cw = round(h * aspect)
-        photo = photo[:, (w - cw) // 2 : (w - cw) // 2 + cw]
-    else:
-        ch = round(w / aspect)
-        photo = photo[(h - ch) // 2 : (h - ch) // 2 + ch]
-    photo = cv2.resize(photo, (width, height), interpolation=cv2.INTER_AREA)
-    return torch.from_numpy(np.ascontiguousarray(photo)).permute(2, 0, 1).float() / 255
-
-
 def run_demo(config: Config, device: torch.device) -> DemoResult:
     """Render the demo scene described by ``config.demo`` through ``config.camera``."""
     demo = config.demo
@@ -72,7 +56,8 @@ def run_demo(config: Config, device: torch.device) -> DemoResult:
     rotations = exposure_rotations(rot0, omega, taus)
     posed = pose_vertices(verts.to(device), rotations, start + taus[:, None] * travel)
     renderer = MeshRenderer(camera, config.render)
-    background = demo_background(demo.width, demo.height).to(device)
+    photo, _ = make_background(np.random.default_rng(0), demo.width, demo.height, "coffee", (1.0, 1.0))
+    background = torch.from_numpy(photo).permute(2, 0, 1).float().div(255).to(device)
     with torch.no_grad():
         out = renderer(posed, topology.to(device), demo_texture(demo.texture_size).to(device))
         return DemoResult(

@@ -19,6 +19,7 @@ from sfb_video.config import Config
 from sfb_video.crop import Crop, make_crop
 from sfb_video.fitter import FitResult, fit_frame
 from sfb_video.geometry.rotation import axis_angle_to_matrix
+from sfb_video.model.formation import exposure_times
 from sfb_video.synth import SyntheticClip
 
 
@@ -79,7 +80,7 @@ def score_fit(fit: FitResult, clip: SyntheticClip, index: int, config: Config) -
     motion = fit.state.motion.reversed() if flipped else fit.state.motion
     if flipped:
         estimate = estimate[::-1]
-    taus = (torch.arange(n, dtype=torch.float32) + 0.5) / n
+    taus = exposure_times(n)
     _, positions = motion.at(taus)
     centres, _ = clip.camera.project(positions)
     true_positions = truth.motion.x0[None] + taus.numpy()[:, None].astype(np.float64) * truth.motion.dx[None]

@@ -107,12 +107,12 @@ def _optimise(
     config: FitConfig,
     render_config: RenderConfig,
     on_step: StepCallback | None,
-) -> tuple[dict[str, torch.Tensor] | None, dict[str, float], torch.Tensor | None, list[dict[str, float]]]:
+) -> tuple[tuple[dict, dict] | None, dict[str, float], torch.Tensor | None, list[dict[str, float]]]:
     renderer = MeshRenderer(crop.camera, render_config)
     taus = exposure_times(render_config.time_steps, crop.image.device)
     params = [p for p in (*shape.parameters(), *motion.parameters()) if p.requires_grad]
     optimiser = torch.optim.Adam(params, lr=config.lr)
-    best: dict[str, torch.Tensor] | None = None
+    best: tuple[dict, dict] | None = None  # state dicts of shape and motion
     best_record: dict[str, float] = {"image": float("inf")}
     best_render: torch.Tensor | None = None
     curve: list[dict[str, float]] = []
@@ -131,7 +131,7 @@ def _optimise(
             since_improved += 1
         if record["image"] < best_record["image"]:
             best_record, best_render = record, rendered.detach()
-            best = {k: v.detach().clone() for k, v in (*shape.state_dict().items(), *motion.state_dict().items())}
+            best = tuple({k: v.detach().clone() for k, v in m.state_dict().items()} for m in (shape, motion))
         if early_stop and since_improved >= config.plateau_patience:
             break
         total.backward()
@@ -177,7 +177,7 @@ def fit_frame(
     device = crop.image.device
     start = time.perf_counter()
     names = (warm.prototype,) if warm is not None else config.prototypes
-    best: tuple[float, str, dict[str, torch.Tensor], dict[str, float], torch.Tensor, ShapeParams, MotionParams] | None
+    best: tuple[float, str, tuple[dict, dict], dict[str, float], torch.Tensor, ShapeParams, MotionParams] | None
     best = None
     curves: dict[str, list[dict[str, float]]] = {}
     for name in names:
@@ -206,8 +206,8 @@ def fit_frame(
     if best is None:
         raise SfbError("the fit diverged from its first step (non-finite loss); check the input images")
     _, name, params, record, rendered, shape, motion = best
-    shape.load_state_dict({k: v for k, v in params.items() if k in shape.state_dict()})
-    motion.load_state_dict({k: v for k, v in params.items() if k in motion.state_dict()})
+    shape.load_state_dict(params[0])
+    motion.load_state_dict(params[1])
     with torch.no_grad():
         state = ObjectState(shape.vertices(), shape.topology, shape.texture(), motion.motion())
     return FitResult(

@@ -158,14 +158,18 @@ class MotionParams(torch.nn.Module):
         rot0 = quaternion_to_matrix(self.quat0)
         return exposure_rotations(rot0, self.omega(), taus), ends[0] + taus[:, None] * (ends[1] - ends[0])
 
+    def _raw_position(self, uv: torch.Tensor) -> torch.Tensor:
+        """Inverse of the tanh placement in :meth:`positions`: (*, 2) crop pixels -> (*, 2) raw."""
+        cam = self.camera
+        ndc = torch.stack(((uv[..., 0] + 0.5) * 2 / cam.width - 1, (uv[..., 1] + 0.5) * 2 / cam.height - 1), -1)
+        return torch.atanh(ndc.clamp(-0.999, 0.999))
+
     def start_at_streak(self, streak: Streak) -> None:
         """Put the start and end of the motion at the streak's ends, sized to its width."""
         cam, (lo, hi) = self.camera, self.size_range
         with torch.no_grad():
-            uv = torch.stack((streak.start, streak.end)).to(self.ends)
-            ndc = torch.stack(((uv[:, 0] + 0.5) * 2 / cam.width - 1, (uv[:, 1] + 0.5) * 2 / cam.height - 1), -1)
+            self.ends[:, :2] = self._raw_position(torch.stack((streak.start, streak.end)).to(self.ends))
             frac = min(max((streak.diameter / cam.height - lo) / (hi - lo), 1e-3), 1 - 1e-3)
-            self.ends[:, :2] = torch.atanh(ndc.clamp(-0.999, 0.999))
             self.ends[0, 2] = math.log(frac / (1 - frac))
             self.ends[1, 2] = 0.0
 
@@ -181,11 +185,10 @@ class MotionParams(torch.nn.Module):
         with torch.no_grad():
             ends = torch.stack((motion.x0, motion.x0 + motion.dx)).to(self.ends)
             uv, depth = cam.project(ends)
-            ndc = torch.stack(((uv[:, 0] + 0.5) * 2 / cam.width - 1, (uv[:, 1] + 0.5) * 2 / cam.height - 1), -1)
             frac = ((cam.fy / depth[0] / cam.height - lo) / (hi - lo)).clamp(1e-3, 1 - 1e-3)
             ratio = (torch.log(depth[0] / depth[1]) / self.log_ratio).clamp(-0.999, 0.999)
             size = torch.stack((torch.logit(frac), torch.atanh(ratio)))
-            self.ends.copy_(torch.cat((torch.atanh(ndc.clamp(-0.999, 0.999)), size[:, None]), -1))
+            self.ends.copy_(torch.cat((self._raw_position(uv), size[:, None]), -1))
             self.quat0.copy_(axis_angle_to_quaternion(matrix_to_axis_angle(motion.rot0.to(self.quat0))))
             omega = motion.omega.to(self.omega_raw)
             norm = omega.norm().clamp(max=self.max_angle * 0.999)

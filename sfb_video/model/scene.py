@@ -10,7 +10,7 @@ from sfb_video.config import RenderConfig
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
 from sfb_video.geometry.pose import pose_vertices
-from sfb_video.model.formation import composite, subframes
+from sfb_video.model.formation import composite, exposure_times, subframes
 from sfb_video.model.motion import Motion
 from sfb_video.render import MeshRenderer, RenderOutput
 
@@ -45,8 +45,7 @@ class ObjectState:
         Args:
             background: (3, H, W) matching ``camera``'s image size.
         """
-        steps = n * steps_per_subframe
-        taus = (torch.arange(steps, device=background.device, dtype=background.dtype) + 0.5) / steps
+        taus = exposure_times(n * steps_per_subframe, background.device)
         with torch.no_grad():
             out = self.render(camera, taus, settings)
             return subframes(out.rgb, out.alpha, background, n)
@@ -55,7 +54,7 @@ class ObjectState:
         self, camera: PinholeCamera, background: torch.Tensor, steps: int, settings: RenderConfig
     ) -> torch.Tensor:
         """(3, H, W) the whole exposure composited over ``background``."""
-        taus = (torch.arange(steps, device=background.device, dtype=background.dtype) + 0.5) / steps
+        taus = exposure_times(steps, background.device)
         with torch.no_grad():
             out = self.render(camera, taus, settings)
             return composite(out.rgb, out.alpha, background)

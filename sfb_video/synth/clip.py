@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.imageio import to_uint8
 from sfb_video.synth.backgrounds import make_background
 from sfb_video.synth.raster import pose_points, rasterize
 from sfb_video.synth.shapes import TexturedMesh, make_shape
@@ -37,11 +38,6 @@ _SHAPE_STREAM, _BACKGROUND_STREAM, _TRAJECTORY_STREAM, _NOISE_STREAM = 0, 1, 2, 
 def stream_rng(seed: int, *key: int) -> np.random.Generator:
     """The generator of random stream ``key`` of ``seed`` (see the module docstring)."""
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
-
-
-def to_uint8(image: np.ndarray) -> np.ndarray:
-    """Clip a float image in [0, 1] and round it to 8 bit."""
-    return np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
 def mask_from_levels(levels: np.ndarray) -> np.ndarray:

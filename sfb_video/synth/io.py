@@ -30,7 +30,7 @@ import torch
 from sfb_video.checks import SfbError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
-from sfb_video.imageio import atomic_write_bytes
+from sfb_video.imageio import atomic_write_bytes, to_uint8
 from sfb_video.synth.clip import (
     FrameTruth,
     SyntheticClip,
@@ -38,7 +38,6 @@ from sfb_video.synth.clip import (
     make_scene,
     mask_from_levels,
     render_frame,
-    to_uint8,
 )
 from sfb_video.synth.shapes import TexturedMesh
 from sfb_video.synth.spec import ClipSpec
