@@ -1,7 +1,8 @@
 """The ``sfb-video`` command line: a preset plus dotted overrides, one subcommand per job.
 
 Errors a user can act on (bad input, bad config, unwritable output) print one line and exit
-with status 2; Ctrl-C exits with 130 and leaves no half-written output.
+with status 2; a clip in which no moving object is found exits with 3 (its outputs are still
+written); Ctrl-C exits with 130 and leaves no half-written output.
 """
 
 from __future__ import annotations
@@ -15,12 +16,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import torch
-import yaml
 
 from sfb_video import __version__
 from sfb_video.checks import SfbError
-from sfb_video.config import Config, config_to_dict, load_config
-from sfb_video.imageio import atomic_write_bytes, write_image
+from sfb_video.config import load_config, save_config
+
+NOTHING_FOUND = 3
+"""Exit status of a run that finished but found no moving object in any frame."""
 
 
 def resolve_device(name: str) -> torch.device:
@@ -68,25 +70,27 @@ class OutputFolder:
             self.tmp.rename(self.path)
 
 
-def write_config(path: Path, config: Config) -> None:
-    """Save the resolved config beside a run's outputs, so the run can be replayed."""
-    atomic_write_bytes(path, yaml.safe_dump(config_to_dict(config), sort_keys=False).encode())
-
-
 def cmd_demo(args: argparse.Namespace) -> int:
-    from sfb_video.demo import run_demo
+    from sfb_video.demo import demo_clip, demo_config, score_run, score_table, write_clip_video
+    from stages.process import ProcessOptions, process_clip
 
-    config = load_config(args.config, args.set)
-    result = run_demo(config, resolve_device(args.device))
-    with OutputFolder(Path(args.out), args.overwrite) as folder:
-        write_image(folder / "blurred.png", result.blurred)
-        write_image(folder / "background.png", result.background)
-        write_image(folder / "subframes.png", torch.cat(list(result.subframes), dim=2))
-        write_config(folder / "config.yaml", config)
+    config = demo_config(load_config(args.config, args.set))
+    device = resolve_device(args.device)
+    out = Path(args.out)
+    video = out.with_name(f"{out.name}-clip.mp4")
     if not args.quiet:
-        print(
-            f"wrote {args.out}/: blurred.png (one exposure), subframes.png ({len(result.subframes)} sharp sub-frames)"
-        )
+        print(f"generating a {config.demo.frames}-frame clip of a {config.demo.shape} -> {video}")
+    clip = demo_clip(config)
+    try:
+        write_clip_video(clip, video)
+    except OSError as exc:
+        raise SfbError(f"cannot write the demo clip {video}: {exc}") from None
+    options = ProcessOptions(video=video, out=out, overwrite=args.overwrite)
+    summary = process_clip(options, config, device, quiet=args.quiet)
+    if not args.quiet:
+        _print_summary(out, summary)
+        print("\naccuracy against the generated ground truth (TSR sub-frames, FMO benchmark measures):\n")
+        print(score_table(score_run(out, clip, config)))
     return 0
 
 
@@ -132,13 +136,102 @@ def cmd_fit(args: argparse.Namespace) -> int:
         fit = fit_frame(crop, config.fit, config.render, on_step=on_step)
     with folder as tmp:
         write_fit(tmp, fit, crop, args.tsr, config.render)
-        write_config(tmp / "config.yaml", config)
+        save_config(tmp / "config.yaml", config)
     if not args.quiet:
         print(
             f"wrote {out}/: prototype {fit.prototype}, L_I {fit.losses['image']:.4f}, "
             f"{fit.iterations} steps in {fit.seconds:.1f} s; mesh.glb, tsr.png, reconstruction.png, fit.json"
         )
     return 0
+
+
+def _parse_frames(text: str | None) -> range | None:
+    if text is None:
+        return None
+    start, sep, stop = text.partition(":")
+    try:
+        frames = range(int(start or 0), int(stop)) if sep else range(int(start), int(start) + 1)
+    except ValueError:
+        raise SfbError(f"--frames must be START:STOP (frame indices, STOP excluded), got {text!r}") from None
+    if frames.start < 0 or len(frames) == 0:
+        raise SfbError(f"--frames {text!r} selects no frames")
+    return frames
+
+
+def _print_summary(out: Path, summary: dict) -> None:
+    print(
+        f"wrote {out}/: {summary['frames_fitted']} of {summary['frames_read']} frames fitted "
+        f"({summary['cold_starts']} cold, {summary['warm_starts']} warm), "
+        f"{summary['frames_without_object']} without the object"
+    )
+    rows = [f for f in summary["frames"] if f["status"] == "fitted"]
+    if rows:
+        print("| frame | start | prototype | L_I | s | speed (sizes/s) |")
+        print("|---:|---|---|---:|---:|---:|")
+        for f in rows:
+            print(
+                f"| {f['index']} | {f['start']} | {f['prototype']} | {f['losses']['image']:.4f} | "
+                f"{f['seconds']:.1f} | {f['speed_sizes_per_s']:.1f} |"
+            )
+    print("tsr.mp4, trajectory.csv, meshes/, recording.rrd (sfb-video replay), summary.json")
+
+
+def cmd_process(args: argparse.Namespace) -> int:
+    from stages.process import ProcessOptions, process_clip
+
+    overrides = list(args.set) + ([f"video.tsr={args.tsr}"] if args.tsr is not None else [])
+    config = load_config(args.config, overrides)
+    video = Path(args.video)
+    options = ProcessOptions(
+        video=video,
+        out=Path(args.out or f"runs/{video.stem}"),
+        frames=_parse_frames(args.frames),
+        background=None if args.background is None else Path(args.background),
+        focal_px=args.focal_px,
+        object_diameter=args.object_diameter,
+        overwrite=args.overwrite,
+    )
+    if not video.is_file():
+        raise SfbError(f"video not found: {video}")
+    summary = process_clip(options, config, resolve_device(args.device), quiet=args.quiet)
+    if not args.quiet:
+        _print_summary(options.out, summary)
+    if summary["frames_fitted"] == 0:
+        if not args.quiet:
+            print(f"no moving object found in any of the {summary['frames_read']} frames")
+        return NOTHING_FOUND
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from stages.process import export_run
+
+    folder = Path(args.run)
+    if not (folder / "config.yaml").is_file():
+        raise SfbError(f"{folder} is not an sfb-video run folder (no config.yaml)")
+    config = load_config(folder / "config.yaml", args.set)
+    tsr = args.tsr if args.tsr is not None else config.video.tsr
+    summary = export_run(folder, config, tsr)
+    if args.novel_views is not None:
+        from stages.novel_views import write_novel_views
+
+        write_novel_views(folder, config, args.novel_views, args.views)
+    if not args.quiet:
+        _print_summary(folder, summary)
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    import subprocess
+
+    path = Path(args.run)
+    path = path / "recording.rrd" if path.is_dir() else path
+    if not path.is_file():
+        raise SfbError(f"no recording at {path}; run sfb-video process first")
+    viewer = shutil.which("rerun")
+    if viewer is None:
+        raise SfbError("the rerun viewer is not on PATH; install rerun-sdk into this environment")
+    return subprocess.call([viewer, str(path)])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -151,7 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--device", default="auto", help="auto (CUDA if present), cpu or cuda")
     common.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     common.add_argument("--quiet", action="store_true", help="print nothing on success")
-    demo = sub.add_parser("demo", parents=[common], help="render a prototype tumbling through one exposure")
+    demo = sub.add_parser("demo", parents=[common], help="generate a short clip with ground truth and process it")
     demo.add_argument("--out", default="runs/demo", help="output folder")
     demo.set_defaults(func=cmd_demo)
     fit = sub.add_parser("fit", parents=[common], help="recover the shape and motion in one blurred image")
@@ -161,6 +254,29 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--tsr", type=int, default=8, help="sub-frames to render for temporal super-resolution")
     fit.add_argument("--out", help="output folder (default: runs/<image name>)")
     fit.set_defaults(func=cmd_fit)
+    process = sub.add_parser("process", parents=[common], help="recover shape and motion in every frame of a clip")
+    process.add_argument("video", help="the clip (any format FFmpeg reads)")
+    process.add_argument("--out", help="run folder (default: runs/<clip name>)")
+    process.add_argument("--tsr", type=int, help="sub-frames per frame in tsr.mp4 (default: video.tsr, 8)")
+    process.add_argument("--frames", help="only frames START:STOP (STOP excluded), e.g. 10:40")
+    process.add_argument("--background", help="a background image instead of the running median")
+    process.add_argument("--object-diameter", type=float, help="the object's diameter in metres, for metric output")
+    process.add_argument("--focal-px", type=float, help="focal length in pixels (default: from camera.fov_y_deg)")
+    process.set_defaults(func=cmd_process)
+    base = argparse.ArgumentParser(add_help=False)
+    base.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config field")
+    base.add_argument("--quiet", action="store_true", help="print nothing on success")
+    export = sub.add_parser("export", parents=[base], help="re-render the outputs of a run without fitting again")
+    export.add_argument("run", help="a run folder written by sfb-video process")
+    export.add_argument("--tsr", type=int, help="sub-frames per frame in tsr.mp4")
+    export.add_argument(
+        "--novel-views", nargs="*", type=int, metavar="FRAME", help="turntables of these frames' meshes (default: best)"
+    )
+    export.add_argument("--views", type=int, default=36, help="turntable views per frame")
+    export.set_defaults(func=cmd_export)
+    replay = sub.add_parser("replay", help="open a run's recording in the rerun viewer")
+    replay.add_argument("run", help="a run folder or a .rrd file")
+    replay.set_defaults(func=cmd_replay)
     return parser
 
 
@@ -172,7 +288,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"sfb-video: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("sfb-video: interrupted; no partial output was left", file=sys.stderr)
+        if args.command == "process":
+            note = "frames finished so far are kept; run the same command again to resume"
+        else:
+            note = "no partial output was left"
+        print(f"sfb-video: interrupted; {note}", file=sys.stderr)
         return 130
 
 

@@ -17,6 +17,7 @@ from typing import Any
 import yaml
 
 from sfb_video.checks import ConfigError
+from sfb_video.imageio import atomic_write_bytes
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 
@@ -104,21 +105,66 @@ class FitConfig:
 
 
 @dataclass(frozen=True)
-class DemoConfig:
-    """The built-in demo: a prototype moving through one exposure over a background."""
+class VideoConfig:
+    """Reading a clip, its background and the timing of its exposures."""
 
+    background: str = "running"
+    """``running``: median of the previous ``background_window`` frames (the next ones at the
+    start of the clip); ``global``: median of ``global_samples`` frames spread over the clip."""
+    background_window: int = 5
+    """K, the frames in the running median (paper: 5)."""
+    global_samples: int = 25
+    exposure_fraction: float = 1.0
+    """Share of the frame interval the shutter is open. The motion is continued across the gap
+    (1 / fraction - 1 exposures long) to predict the next frame's start."""
+    tsr: int = 8
+    """Sub-frames rendered per blurred frame in ``tsr.mp4``."""
+    warm_start: bool = True
+    """Start each frame of a track from the previous frame's result (off: every frame cold)."""
+    retry_ratio: float = 2.0
+    """A warm fit whose image loss exceeds the previous frame's by this factor is redone cold,
+    and the better of the two kept."""
+    max_side: int = 4096
+    """Frames larger than this on a side are refused (the running median holds K + 1 of them)."""
+
+
+@dataclass(frozen=True)
+class DetectConfig:
+    """Finding the fast moving object among the blobs of the difference image."""
+
+    threshold: float = 0.1
+    """||I - B||_2 above this (RGB in [0, 1]) marks a pixel as differing from the background."""
+    open_px: int = 3
+    """Side of the square that opens the difference mask, removing specks of noise."""
+    min_area_px: int = 20
+    """Blobs smaller than this are noise."""
+    min_fill: float = 0.3
+    """A tracked object's blob must cover at least this fraction of the disc it is predicted to
+    be; smaller blobs are noise or the remains of a slow mover."""
+    motion_px: int = 6
+    """Neighbouring masks are grown by this much before their pixels are dropped, so that an
+    object creeping a few pixels per frame is dropped too."""
+    gate: float = 4.0
+    """A tracked object is looked for within this many object diameters of where its motion
+    predicts it; a blob further away starts a new track."""
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """The built-in demo: a short generated clip with ground truth, processed like a user's clip."""
+
+    shape: str = "ball"
+    """One of the generator's shapes: ball, box, pen, ring, key."""
+    frames: int = 8
     width: int = 320
     height: int = 240
-    prototype: str = "sphere"
-    depth: float = 4.5
-    """Distance of the object from the camera, in object sizes."""
-    travel: tuple[float, float, float] = (2.0, 0.6, 0.0)
-    """Translation during the exposure, in object sizes."""
-    rotation_deg: tuple[float, float, float] = (0.0, 90.0, 30.0)
-    """Rotation during the exposure as an axis-angle vector in degrees."""
-    texture_size: int = 100
-    subframes: int = 8
-    """Sharp sub-frames to split the exposure into for the TSR strip."""
+    size_px: tuple[float, float] = (24.0, 28.0)
+    """Range of the object's apparent diameter in pixels."""
+    speed: tuple[float, float] = (1.2, 1.5)
+    """Range of the travel per exposure, in object diameters."""
+    exposure_fraction: float = 0.8
+    """The generated camera's shutter; the pipeline is told it (``video.exposure_fraction``)."""
+    seed: int = 0
 
 
 @dataclass(frozen=True)
@@ -129,6 +175,8 @@ class Config:
     render: RenderConfig = field(default_factory=RenderConfig)
     crop: CropConfig = field(default_factory=CropConfig)
     fit: FitConfig = field(default_factory=FitConfig)
+    video: VideoConfig = field(default_factory=VideoConfig)
+    detect: DetectConfig = field(default_factory=DetectConfig)
     demo: DemoConfig = field(default_factory=DemoConfig)
 
 
@@ -209,3 +257,8 @@ def _plain(x: Any) -> Any:
     if isinstance(x, tuple | list):
         return [_plain(v) for v in x]
     return x
+
+
+def save_config(path: Path, config: Config) -> None:
+    """Save the resolved config beside a run's outputs (atomically), so the run can be replayed."""
+    atomic_write_bytes(path, yaml.safe_dump(config_to_dict(config), sort_keys=False).encode())

@@ -92,9 +92,19 @@ def _resize(image: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 
 
 def make_crop(
-    image: torch.Tensor, background: torch.Tensor, box: Box, camera: PinholeCamera, config: CropConfig
+    image: torch.Tensor,
+    background: torch.Tensor,
+    box: Box,
+    camera: PinholeCamera,
+    config: CropConfig,
+    blob: torch.Tensor | None = None,
 ) -> Crop:
     """Crop ``image`` and ``background`` (3, H, W) around the object box ``box``.
+
+    Args:
+        blob: (H, W) bool, the detected object; when given, the object region is restricted to
+            the differing pixels near it, so that another mover inside the crop is not taken
+            for the object.
 
     Raises:
         SfbError: when the images differ in size or the box is empty or outside the frame.
@@ -111,10 +121,17 @@ def make_crop(
     out = (max(1, round(cw * scale)), max(1, round(ch * scale)))
     img = _resize(image[:, y0 : y0 + ch, x0 : x0 + cw], out).clamp(0, 1)
     bgr = _resize(background[:, y0 : y0 + ch, x0 : x0 + cw], out).clamp(0, 1)
+    region = object_region(img, bgr, config.detect_threshold)
+    if blob is not None:
+        near = _resize(blob[None, y0 : y0 + ch, x0 : x0 + cw].to(img), out)[0] > 0
+        # Grown a little: the blob came from a stricter threshold and misses the streak's faint rim.
+        grow = 2 * max(1, round(0.1 * min(out))) + 1
+        near = F.max_pool2d(near[None, None].float(), grow, stride=1, padding=grow // 2)[0, 0] > 0
+        region &= near
     return Crop(
         box=cb,
         camera=camera.crop(x0, y0, cw, ch, out[0], out[1]),
         image=img,
         background=bgr,
-        object_mask=largest_blob(object_region(img, bgr, config.detect_threshold))[0],
+        object_mask=largest_blob(region)[0],
     )

@@ -1,67 +1,65 @@
-"""The built-in demo: a textured prototype tumbling through one exposure over a photo.
+"""The built-in demo: generate a short clip with ground truth and process it like a user's clip.
 
-It exercises the whole forward path (prototype, pose over the exposure, renderer, formation
-model) and shows what the fitter will later invert: the blurred frame and its sharp sub-frames.
+The clip (``sfb_video.synth``: a textured object flying past a photo, rendered by a forward model
+independent of ours) is written as H.264 beside the run folder, processed by the full pipeline,
+and the recovered sub-frames are scored against the truth, so the demo also shows how far the
+results can be trusted.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
-import numpy as np
-import torch
+import dataclasses
+import statistics
+from pathlib import Path
 
 from sfb_video.config import Config
-from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.geometry.pose import pose_vertices
-from sfb_video.geometry.prototypes import load_prototype
-from sfb_video.geometry.rotation import axis_angle_to_matrix, exposure_rotations
-from sfb_video.model.formation import composite, exposure_times, subframes
-from sfb_video.render import MeshRenderer
-from sfb_video.synth.backgrounds import make_background
+from sfb_video.evaluation import FrameScore, score_state
+from sfb_video.results import load_results
+from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip
+from sfb_video.video import VideoWriter
 
 
-@dataclass(frozen=True)
-class DemoResult:
-    """The demo's images, all (3, H, W) in [0, 1] except ``subframes`` (N, 3, H, W)."""
-
-    blurred: torch.Tensor
-    background: torch.Tensor
-    subframes: torch.Tensor
-
-
-def demo_texture(size: int) -> torch.Tensor:
-    """(3, size, size) a colourful checker with a stripe, so rotation is visible."""
-    y, x = torch.meshgrid(torch.linspace(0, 1, size), torch.linspace(0, 1, size), indexing="ij")
-    checker = ((x * 6).floor() + (y * 3).floor()) % 2
-    red = torch.stack((torch.full_like(x, 0.9), torch.full_like(x, 0.2), torch.full_like(x, 0.1)))
-    yellow = torch.stack((torch.full_like(x, 0.95), torch.full_like(x, 0.85), torch.full_like(x, 0.2)))
-    texture = torch.where(checker.bool(), red, yellow)
-    stripe = ((y - 0.5).abs() < 0.06).float()
-    return texture * (1 - stripe) + 0.1 * stripe
-
-
-def run_demo(config: Config, device: torch.device) -> DemoResult:
-    """Render the demo scene described by ``config.demo`` through ``config.camera``."""
+def demo_clip(config: Config) -> SyntheticClip:
+    """The clip ``config.demo`` describes, generated in memory."""
     demo = config.demo
-    camera = PinholeCamera.from_fov(demo.width, demo.height, config.camera.fov_y_deg)
-    verts, topology = load_prototype(demo.prototype)
-    steps = demo.subframes * max(1, math.ceil(config.render.time_steps / demo.subframes))
-    taus = exposure_times(steps, device)
-    travel = torch.tensor(demo.travel, device=device)
-    start = torch.tensor([0.0, 0.0, demo.depth], device=device) - travel / 2
-    rot0 = axis_angle_to_matrix(torch.tensor([0.4, 0.0, 0.3], device=device))
-    omega = torch.deg2rad(torch.tensor(demo.rotation_deg, device=device))
-    rotations = exposure_rotations(rot0, omega, taus)
-    posed = pose_vertices(verts.to(device), rotations, start + taus[:, None] * travel)
-    renderer = MeshRenderer(camera, config.render)
-    photo, _ = make_background(np.random.default_rng(0), demo.width, demo.height, "coffee", (1.0, 1.0))
-    background = torch.from_numpy(photo).permute(2, 0, 1).float().div(255).to(device)
-    with torch.no_grad():
-        out = renderer(posed, topology.to(device), demo_texture(demo.texture_size).to(device))
-        return DemoResult(
-            blurred=composite(out.rgb, out.alpha, background).cpu(),
-            background=background.cpu(),
-            subframes=subframes(out.rgb, out.alpha, background, demo.subframes).cpu(),
-        )
+    spec = ClipSpec(
+        shape=demo.shape,
+        num_frames=demo.frames,
+        width=demo.width,
+        height=demo.height,
+        fov_y_deg=config.camera.fov_y_deg,
+        size_px_range=demo.size_px,
+        speed_range=demo.speed,
+        exposure_fraction=demo.exposure_fraction,
+        num_subframes=config.video.tsr,
+        seed=demo.seed,
+    )
+    return generate_clip(spec)
+
+
+def write_clip_video(clip: SyntheticClip, path: Path, fps: float = 30.0) -> None:
+    """Write the clip's blurred frames as an H.264 video."""
+    with VideoWriter(path, fps, clip.spec.width, clip.spec.height) as video:
+        for frame in clip.frames:
+            video.write(frame)
+
+
+def demo_config(config: Config) -> Config:
+    """``config`` with the pipeline told the generated camera's shutter."""
+    video = dataclasses.replace(config.video, exposure_fraction=config.demo.exposure_fraction)
+    return dataclasses.replace(config, video=video)
+
+
+def score_run(folder: Path, clip: SyntheticClip, config: Config) -> dict[int, FrameScore]:
+    """Score every fitted frame of a run against the clip's truth, in the run's time direction."""
+    return {i: score_state(r.state, clip, i, config, may_flip=False) for i, r in load_results(folder).items()}
+
+
+def score_table(scores: dict[int, FrameScore]) -> str:
+    """A Markdown table of per-frame scores and their means."""
+    lines = ["| frame | TIoU | PSNR | transl. err |", "|---:|---:|---:|---:|"]
+    lines += [f"| {i} | {s.tiou:.3f} | {s.psnr:.2f} | {s.translation_err:.2f} |" for i, s in sorted(scores.items())]
+    if scores:
+        mean = {k: statistics.mean(getattr(s, k) for s in scores.values()) for k in ("tiou", "psnr", "translation_err")}
+        lines.append(f"| mean | {mean['tiou']:.3f} | {mean['psnr']:.2f} | {mean['translation_err']:.2f} |")
+    return "\n".join(lines)

@@ -8,6 +8,7 @@ rotation made during the exposure (the mesh's own orientation is arbitrary for a
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +21,7 @@ from sfb_video.crop import Crop, make_crop
 from sfb_video.fitter import FitResult, fit_frame
 from sfb_video.geometry.rotation import axis_angle_to_matrix
 from sfb_video.model.formation import exposure_times
+from sfb_video.model.scene import ObjectState
 from sfb_video.synth import SyntheticClip
 
 
@@ -66,18 +68,25 @@ def crop_masks(clip: SyntheticClip, index: int, crop: Crop) -> torch.Tensor:
     return F.interpolate(masks[:, None], size=size, mode="bilinear", antialias=True, align_corners=False)[:, 0]
 
 
-def score_fit(fit: FitResult, clip: SyntheticClip, index: int, config: Config) -> FrameScore:
-    """Compare a fit of frame ``index`` with its ground truth."""
+def score_state(
+    state: ObjectState, clip: SyntheticClip, index: int, config: Config, may_flip: bool = True
+) -> FrameScore:
+    """Compare a recovered object of frame ``index`` with its ground truth.
+
+    Args:
+        may_flip: reverse the estimate in time when that fits the truth better, as the benchmark
+            does for one frame; a video, whose direction the pipeline resolves, is scored without.
+    """
     truth = clip.truth[index]
     n = clip.spec.num_subframes
     x, y, w, h = truth.bbox
     box_camera = clip.camera.crop(x, y, w, h, w, h)
     background = _image(clip.scene.background)[:, y : y + h, x : x + w]
-    estimate = fit.state.render_subframes(box_camera, background, n, 4, config.render)
+    estimate = state.render_subframes(box_camera, background, n, 4, config.render)
     estimate = estimate.permute(0, 2, 3, 1).numpy()
     expected = truth.subframes[:, y : y + h, x : x + w].astype(np.float64) / 255
-    flipped = metrics.best_direction(estimate, expected)
-    motion = fit.state.motion.reversed() if flipped else fit.state.motion
+    flipped = may_flip and metrics.best_direction(estimate, expected)
+    motion = state.motion.reversed() if flipped else state.motion
     if flipped:
         estimate = estimate[::-1]
     taus = exposure_times(n)
@@ -92,10 +101,16 @@ def score_fit(fit: FitResult, clip: SyntheticClip, index: int, config: Config) -
         ssim=metrics.ssim(estimate, expected),
         translation_err=metrics.translation_error(positions.numpy(), true_positions),
         rotation_err_deg=metrics.rotation_error_deg(est_delta, true_delta),
-        image_loss=fit.losses["image"],
-        seconds=fit.seconds,
+        image_loss=float("nan"),
+        seconds=float("nan"),
         flipped=flipped,
     )
+
+
+def score_fit(fit: FitResult, clip: SyntheticClip, index: int, config: Config) -> FrameScore:
+    """Compare a single-frame fit of frame ``index`` with its ground truth."""
+    score = score_state(fit.state, clip, index, config)
+    return dataclasses.replace(score, image_loss=fit.losses["image"], seconds=fit.seconds)
 
 
 def fit_synthetic_frame(

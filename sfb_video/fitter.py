@@ -21,7 +21,7 @@ from sfb_video.geometry.pose import pose_vertices
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.model import losses
 from sfb_video.model.formation import composite, exposure_times
-from sfb_video.model.motion import Motion, MotionParams, streak_from_mask
+from sfb_video.model.motion import Motion, MotionParams, Streak, streak_from_mask
 from sfb_video.model.scene import ObjectState
 from sfb_video.model.shape import ShapeParams
 from sfb_video.render import MeshRenderer
@@ -139,6 +139,14 @@ def _optimise(
     return best, best_record, best_render, curve
 
 
+def _oriented(streak: Streak, motion: Motion, crop: Crop) -> Streak:
+    """``streak`` with its start at the end nearer where ``motion`` starts in the crop."""
+    start_uv = crop.camera.project(motion.x0.to(streak.start))[0]
+    if float((streak.end - start_uv).norm()) < float((streak.start - start_uv).norm()):
+        return Streak(streak.end, streak.start, streak.diameter)
+    return streak
+
+
 def _check_crop(crop: Crop) -> None:
     if not bool(torch.isfinite(crop.image).all() and torch.isfinite(crop.background).all()):
         raise SfbError("image or background contains NaN or infinite values")
@@ -194,6 +202,10 @@ def fit_frame(
         ).to(device)
         if warm is not None:
             motion.load_motion(warm.motion)
+            # The streak locates this frame far better than a prediction carried over from the
+            # last one, whose errors would add up along a track: the prediction only says which
+            # end came first, and the rotation.
+            motion.start_at_streak(_oriented(streak_from_mask(crop.object_mask), warm.motion, crop))
         else:
             motion.start_at_streak(streak_from_mask(crop.object_mask))
         iterations = config.warm_iterations if warm is not None else config.iterations

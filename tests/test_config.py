@@ -19,9 +19,9 @@ def test_fast_preset_overrides_only_what_it_names() -> None:
 
 
 def test_dotted_overrides_are_typed() -> None:
-    cfg = load_config("default", ["render.sigma_inv=3000", "demo.travel=[1, 2, 3]"])
+    cfg = load_config("default", ["render.sigma_inv=3000", "demo.size_px=[10, 20]"])
     assert cfg.render.sigma_inv == 3000.0
-    assert cfg.demo.travel == (1.0, 2.0, 3.0)
+    assert cfg.demo.size_px == (10.0, 20.0)
     assert load_config("default", ["fit.prototypes=[torus]"]).fit.prototypes == ("torus",)
 
 
@@ -30,7 +30,7 @@ def test_dotted_overrides_are_typed() -> None:
     [
         ("render.sigmainv=3", "unknown config key render.sigmainv"),
         ("render.time_steps=2.5", "render.time_steps must be int"),
-        ("demo.travel=[1, 2]", "list of 3 values"),
+        ("demo.size_px=[1, 2, 3]", "list of 2 values"),
         ("render", "must look like"),
         ("fit.prototypes=[]", "non-empty list"),
     ],

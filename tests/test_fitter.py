@@ -60,21 +60,25 @@ def test_true_subframe_masks_fit_better_than_the_difference_mask(full: dict[str,
     assert with_masks["tiou"] >= full["tiou"] + 0.05
 
 
-def test_warm_start_from_the_truth_stays_there() -> None:
+@pytest.mark.parametrize("reverse", [False, True])
+def test_warm_start_takes_its_direction_from_the_prediction_and_its_place_from_the_streak(reverse: bool) -> None:
     config = load_config("fast")
-    # The ball, which the sphere prototype can match: from the truth a fit has no reason to leave.
+    # The ball, which the sphere prototype can match, warm-started from the cold fit's shape and
+    # the true motion (or the true motion reversed): the fit runs in the predicted direction.
     clip = _clip("ball", 0)
     crop = synthetic_crop(clip, 0, config)
     truth = clip.truth[0].motion
     motion = Motion(*(torch.from_numpy(a).float() for a in (truth.x0, truth.dx, truth.rotation, truth.omega)))
     cold, _ = fit_synthetic_frame(clip, 0, config)
+    start = motion.reversed() if reverse else motion
     warm = fit_frame(
-        crop, config.fit, config.render, warm=WarmStart("sphere", cold.state.vertices, cold.state.texture, motion)
+        crop, config.fit, config.render, warm=WarmStart("sphere", cold.state.vertices, cold.state.texture, start)
     )
     score = score_fit(warm, clip, 0, config)
     assert warm.iterations <= config.fit.warm_iterations
-    assert score.translation_err <= 0.55  # measured 0.45
-    assert score.tiou >= 0.85  # measured 0.93
+    assert score.flipped == reverse
+    assert score.translation_err <= 0.5  # measured 0.38 either way
+    assert score.tiou >= 0.72  # measured 0.82 and 0.77 (cold: 0.75)
 
 
 def test_fit_is_deterministic() -> None:

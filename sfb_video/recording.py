@@ -1,0 +1,364 @@
+"""A rerun recording (``recording.rrd``) of a processed clip, to replay the run in the rerun viewer.
+
+Open it with ``rerun recording.rrd``. The file is streamed to disk while the clip is processed:
+memory holds no images, only rerun's small per-chunk index (see ``WRITE_FOOTER``). It appears
+under its final name only when the recorder is closed; until then it is a hidden
+``.<name>.<random>.tmp.rrd`` in the same folder, removed if the run fails.
+
+Entity layout (what each path holds):
+
+    world                          static ViewCoordinates RDF: world = the camera frame (OpenCV,
+                                   x right, y down, z forward), so the 3D view matches the image.
+    world/camera                   static Pinhole: the clip's intrinsics and resolution, camera at
+                                   the world origin.
+    world/camera/image             the input frame (JPEG), shown in the pinhole's 2D view and on
+                                   its frustum in 3D; static AnnotationContext for the mask.
+    world/camera/image/detection   Boxes2D: the detected object box; Clear on frames without one.
+    world/camera/image/mask        SegmentationImage: the detection mask (class 1 = "object",
+                                   uncompressed); Clear on frames without one.
+    world/object                   Mesh3D: the fitted textured mesh in object coordinates (unit
+                                   scale), and Transform3D (translation + mat3x3): its pose, object
+                                   -> camera coordinates.
+    world/trajectory               LineStrips3D + Points3D: the object's 3D positions so far.
+    background                     the estimated background (JPEG).
+    reconstruction                 I_hat, the fitted object blurred over the background (JPEG).
+    tsr                            the temporal super-resolution sub-frames (JPEG), one per
+                                   sub-frame time step.
+    losses/<name>                  Scalars: the final value of each loss of a frame's fit.
+    fit/<name>                     Scalars: each loss along the optimisation of a frame's fit.
+
+Timelines (all sequences):
+
+    frame      the frame index. Everything but ``tsr`` and the sub-frame poses is on it; at a
+               frame the object's transform is its pose at mid-exposure.
+    subframe   ``frame * n + k`` for sub-frame k of the n a fit renders: scrub it to play the
+               sub-frames. ``tsr`` and the pose at each sub-frame's mid-time live only here (so they
+               cannot shadow the frame-level pose); the mesh and the reconstruction are also
+               stamped at ``frame * n`` so that they show while scrubbing.
+    step       the optimisation step of ``fit/<name>``; those rows also carry ``frame``, so a
+               frame's curve can be picked out (steps restart at 0 for each frame).
+
+Reading it back in Python: ``rerun.chunk.RrdReader(path).stream().to_chunks()`` gives chunks with
+``entity_path`` (with a leading "/"), ``is_static``, ``timeline_names`` and ``to_record_batch()``,
+whose columns are the timelines and components named "<Archetype>:<field>" (e.g.
+"Transform3D:translation"); matrices are stored column-major.
+
+Pixel convention: the project puts pixel centres at integers, rerun at half-integers (pixel (0, 0)
+covers [0, 1] x [0, 1]), so the pinhole's principal point is (cx + 0.5, cy + 0.5) and a box of
+pixels (x, y, w, h) spans [x, x + w] x [y, y + h].
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import uuid
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+import rerun as rr
+import torch
+
+from sfb_video.checks import SfbError, check_shape
+from sfb_video.export import to_trimesh
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.imageio import FILE_MODE, to_uint8
+from sfb_video.model.formation import exposure_times
+from sfb_video.model.scene import ObjectState
+
+APPLICATION_ID = "sfb-video"
+FRAME, SUBFRAME, STEP = "frame", "subframe", "step"
+JPEG_QUALITY = 90
+# The footer is an index of every chunk, written on close: it keeps LazyStore and random access
+# working, at the cost of a few KB of memory per chunk until then (about 30 KB per frame
+# measured). Everything else streams to disk; False makes memory flat but rerun then warns on
+# stderr and readers treat the file as the legacy format.
+WRITE_FOOTER = True
+MASK_CLASS = 1
+# In object sizes (the unit of the 3D scene), so they scale with the object.
+TRAJECTORY_LINE_RADIUS = 0.02
+TRAJECTORY_POINT_RADIUS = 0.05
+
+Box = tuple[int, int, int, int]
+
+
+class Recorder:
+    """Writes the rerun recording of one clip; see the module docstring for what goes where.
+
+    Use it as a context manager: it closes (renames the file into place) on success and aborts
+    (removes the temporary file) on an exception. Each recorder has its own
+    ``rr.RecordingStream``, never the global one, so several can be open in one process.
+
+    Args:
+        path: the final ``.rrd`` path; its folder is created if missing.
+        camera: the full-frame camera every image passed in must match.
+        name: the clip's name, shown as the recording's name in the viewer.
+        recording_id: rerun's recording id; by default derived from ``name``, so re-runs of one
+            clip share it (the viewer merges recordings with the same id).
+
+    Raises:
+        SfbError: if the temporary file cannot be created.
+    """
+
+    def __init__(self, path: str | Path, camera: PinholeCamera, name: str, *, recording_id: str | None = None) -> None:
+        self.path = Path(path)
+        self.camera = camera
+        self._frame: int | None = None
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".tmp.rrd")
+        except OSError as e:
+            raise SfbError(f"cannot write the recording {self.path}: {e.strerror or e}") from None
+        os.close(fd)
+        os.chmod(tmp, FILE_MODE)
+        self._tmp: Path | None = Path(tmp)
+        if recording_id is None:
+            recording_id = str(uuid.uuid5(uuid.NAMESPACE_URL, f"{APPLICATION_ID}:{name}"))
+        self._rec = rr.RecordingStream(application_id=APPLICATION_ID, recording_id=recording_id)
+        # Wall-clock log times would make two runs of one clip differ in content, and would add a
+        # fourth timeline the viewer might pick by default.
+        self._rec.set_log_time_enabled(False)
+        try:
+            self._rec.save(self._tmp, write_footer=WRITE_FOOTER)
+        except (RuntimeError, OSError) as e:
+            self.abort()
+            raise SfbError(f"cannot write the recording {self.path}: {str(e).splitlines()[0]}") from None
+        try:
+            self._rec.send_recording_name(name)
+            self._log_static(camera)
+        except BaseException:
+            self.abort()
+            raise
+
+    # ----------------------------------------------------------------------------------------------
+    # Logging
+
+    def log_frame(self, index: int, image: torch.Tensor, background: torch.Tensor) -> None:
+        """Log frame ``index``: the input ``image`` and the ``background``, both (3, H, W) in [0, 1]."""
+        self._check_image(image, "image")
+        self._check_image(background, "background")
+        self._at(frame=index)
+        self._log("world/camera/image", _jpeg(image))
+        self._log("background", _jpeg(background))
+
+    def log_detection(self, index: int, box: Box | None, mask: torch.Tensor | None) -> None:
+        """Log the detection of frame ``index``.
+
+        Args:
+            box: (x, y, w, h) in pixels, or None (clears the previous frame's box).
+            mask: (H, W) bool or float (> 0.5 is the object), or None (clears the previous mask).
+        """
+        self._at(frame=index)
+        if box is None:
+            self._log("world/camera/image/detection", rr.Clear(recursive=False))
+        else:
+            x, y, w, h = box
+            self._log("world/camera/image/detection", rr.Boxes2D(mins=[(x, y)], sizes=[(w, h)]))
+        if mask is None:
+            self._log("world/camera/image/mask", rr.Clear(recursive=False))
+        else:
+            check_shape(mask, (self.camera.height, self.camera.width), "mask")
+            ids = (mask.detach().float().cpu() > 0.5).numpy().astype(np.uint8) * MASK_CLASS
+            self._log("world/camera/image/mask", rr.SegmentationImage(ids, opacity=0.5))
+
+    def log_fit(
+        self,
+        index: int,
+        state: ObjectState,
+        reconstruction: torch.Tensor,
+        subframes: torch.Tensor,
+        losses: dict[str, float],
+        curve: list[dict[str, float]],
+    ) -> None:
+        """Log the fit of frame ``index``.
+
+        Args:
+            state: the fitted object; its mesh is logged with its pose at mid-exposure on the frame
+                timeline and at each sub-frame's mid-time on the subframe timeline.
+            reconstruction: (3, H, W) full-frame I_hat in [0, 1].
+            subframes: (n, 3, H, W) full-frame TSR sub-frames in [0, 1]; n sets the subframe
+                timeline's step for this frame (values ``index * n + k``).
+            losses: the final value of each loss.
+            curve: one dict (loss name -> value) per optimisation step.
+        """
+        self._check_image(reconstruction, "reconstruction")
+        check_shape(subframes, (None, 3, self.camera.height, self.camera.width), "subframes")
+        n = subframes.shape[0]
+        if n < 1:
+            raise SfbError("subframes must hold at least one sub-frame")
+        device = state.motion.x0.device
+        mid_rot, mid_pos = state.motion.at(torch.full((1,), 0.5, device=device))
+        sub_rot, sub_pos = state.motion.at(exposure_times(n, device))
+
+        self._at(frame=index, subframe=index * n)
+        self._log("reconstruction", _jpeg(reconstruction))
+        self._log("world/object", _mesh3d(state))
+
+        self._at(frame=index)
+        self._log("world/object", _transform(mid_rot[0], mid_pos[0]))
+        for name, value in losses.items():
+            self._log(f"losses/{rr.escape_entity_path_part(name)}", rr.Scalars(float(value)))
+
+        for k in range(n):
+            self._at(subframe=index * n + k)
+            self._log("tsr", _jpeg(subframes[k]))
+            self._log("world/object", _transform(sub_rot[k], sub_pos[k]))
+
+        # One columnar call per loss instead of a log call per step and loss: a fit runs hundreds
+        # of steps. send_columns ignores the stream's current time, so both indexes are explicit.
+        for name in dict.fromkeys(key for row in curve for key in row):
+            steps = [s for s, row in enumerate(curve) if name in row]
+            self._check_open()
+            self._rec.send_columns(
+                f"fit/{rr.escape_entity_path_part(name)}",
+                indexes=[rr.TimeColumn(STEP, sequence=steps), rr.TimeColumn(FRAME, sequence=[index] * len(steps))],
+                columns=rr.Scalars.columns(scalars=[float(curve[s][name]) for s in steps]),
+                strict=True,
+            )
+
+    def log_trajectory(self, points: np.ndarray) -> None:
+        """Log the (P, 3) 3D positions so far at the last frame logged, replacing the previous ones."""
+        if self._frame is None:
+            raise SfbError("log a frame before the trajectory: it is logged at the current frame")
+        points = np.asarray(points, dtype=np.float32)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise SfbError(f"trajectory points must have shape (*, 3), got {points.shape}")
+        self._at(frame=self._frame)
+        if len(points) == 0:
+            self._log("world/trajectory", rr.Clear(recursive=False))
+            return
+        self._log(
+            "world/trajectory",
+            rr.LineStrips3D([points], radii=TRAJECTORY_LINE_RADIUS),
+            rr.Points3D(points, radii=TRAJECTORY_POINT_RADIUS),
+        )
+
+    # ----------------------------------------------------------------------------------------------
+    # Finishing
+
+    def close(self) -> None:
+        """Finish the file and move it onto ``path``. Does nothing if already closed or aborted."""
+        if self._tmp is None:
+            return
+        tmp, self._tmp = self._tmp, None
+        try:
+            # disconnect() writes the footer and closes the file; only then is it complete.
+            self._rec.flush()
+            self._rec.disconnect()
+            os.replace(tmp, self.path)
+        except OSError as e:
+            tmp.unlink(missing_ok=True)
+            raise SfbError(f"cannot write the recording {self.path}: {e.strerror or e}") from None
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+
+    def abort(self) -> None:
+        """Stop recording and remove the temporary file; ``path`` is left untouched."""
+        if self._tmp is None:
+            return
+        tmp, self._tmp = self._tmp, None
+        try:
+            self._rec.disconnect()
+        finally:
+            tmp.unlink(missing_ok=True)
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    # ----------------------------------------------------------------------------------------------
+    # Internals
+
+    def _log_static(self, camera: PinholeCamera) -> None:
+        self._log("world", rr.ViewCoordinates.RDF, static=True)
+        intrinsics = [[camera.fx, 0.0, camera.cx + 0.5], [0.0, camera.fy, camera.cy + 0.5], [0.0, 0.0, 1.0]]
+        self._log(
+            "world/camera",
+            rr.Pinhole(
+                image_from_camera=intrinsics,
+                resolution=[camera.width, camera.height],
+                camera_xyz=rr.ViewCoordinates.RDF,
+            ),
+            static=True,
+        )
+        # On the parent, so that the Clear of a frame without a mask cannot touch it; the mask finds
+        # its class colours there.
+        self._log("world/camera/image", rr.AnnotationContext([(MASK_CLASS, "object", (255, 64, 64))]), static=True)
+
+    def _at(self, *, frame: int | None = None, subframe: int | None = None) -> None:
+        """Set exactly the given timelines for the next log calls (the others are unset)."""
+        self._check_open()
+        self._rec.reset_time()
+        if frame is not None:
+            self._frame = int(frame)
+            self._rec.set_time(FRAME, sequence=int(frame))
+        if subframe is not None:
+            self._rec.set_time(SUBFRAME, sequence=int(subframe))
+
+    def _log(self, path: str, *archetypes: rr.AsComponents, static: bool = False) -> None:
+        self._check_open()
+        self._rec.log(path, *archetypes, static=static, strict=True)
+
+    def _check_open(self) -> None:
+        if self._tmp is None:
+            raise SfbError(f"the recording {self.path} is already closed")
+
+    def _check_image(self, image: torch.Tensor, name: str) -> None:
+        check_shape(image, (3, self.camera.height, self.camera.width), name)
+
+
+def _jpeg(image: torch.Tensor) -> rr.EncodedImage | rr.Image:
+    """A (3, H, W) image in [0, 1] as a JPEG-encoded rerun image."""
+    return rr.Image(to_uint8(image), color_model="RGB").compress(jpeg_quality=JPEG_QUALITY)
+
+
+def _transform(rotation: torch.Tensor, position: torch.Tensor) -> rr.Transform3D:
+    """The pose x_cam = R x_obj + t of (3, 3) ``rotation`` and (3,) ``position`` (pose_vertices' convention)."""
+    return rr.Transform3D(
+        translation=position.detach().cpu().numpy().astype(np.float32),
+        mat3x3=rotation.detach().cpu().numpy().astype(np.float32),
+    )
+
+
+def _mesh3d(state: ObjectState) -> rr.Mesh3D:
+    """The textured mesh of ``state`` in object coordinates, one vertex per distinct (vertex, UV) pair."""
+    mesh = to_trimesh(state)
+    positions = np.asarray(mesh.vertices, dtype=np.float32)
+    triangles = np.asarray(mesh.faces, dtype=np.uint32)
+    texcoords = np.array(mesh.visual.uv, dtype=np.float32)
+    # to_trimesh flips v up for OBJ/glTF; rerun's texcoords have v down like image rows (origin at
+    # the top-left, as in Vulkan/Metal), which is the project's own convention, so flip it back.
+    texcoords[:, 1] = 1 - texcoords[:, 1]
+    return rr.Mesh3D(
+        vertex_positions=positions,
+        triangle_indices=triangles,
+        vertex_normals=_smooth_normals(positions, triangles),
+        vertex_texcoords=texcoords,
+        albedo_texture=to_uint8(state.texture),
+    )
+
+
+def _smooth_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(V, 3) unit vertex normals for (V, 3) positions and (F, 3) counter-clockwise triangles.
+
+    rerun shades a mesh without normals poorly. The vertices split at UV seams are merged by
+    position first, so the seams do not show as creases.
+    """
+    _, group = np.unique(positions, axis=0, return_inverse=True)
+    group = group.reshape(-1)
+    corners = positions[triangles]
+    # The cross product's length is twice the area: larger faces weigh more.
+    face_normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    sums = np.zeros((int(group.max()) + 1 if group.size else 0, 3), dtype=np.float64)
+    np.add.at(sums, group[triangles], np.broadcast_to(face_normals[:, None, :], (len(triangles), 3, 3)))
+    normals = sums[group]
+    return (normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)).astype(np.float32)

@@ -1,0 +1,117 @@
+"""What the video pipeline keeps of each fitted frame, and how it is saved and loaded.
+
+One :class:`FrameResult` per frame in which the object was fitted. It is saved as soon as the
+frame is done (``frames/frame_XXXX.pt`` in the run folder, written atomically), which is what
+lets an interrupted run resume and ``sfb-video export`` re-render without fitting again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from sfb_video.checks import SfbError
+from sfb_video.crop import Box
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.geometry.mesh import MeshTopology
+from sfb_video.imageio import atomic_write_bytes
+from sfb_video.model.motion import Motion
+from sfb_video.model.scene import ObjectState
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """The fit of one frame of a clip.
+
+    Attributes:
+        index: the frame's index in the clip.
+        detection_box: (x, y, w, h) box of the detected blob in the frame.
+        crop_box: the box of the crop the fit worked in.
+        crop_camera: the camera of that crop at its working resolution.
+        state: mesh, texture and motion in the clip's camera coordinates (object sizes), in the
+            time direction chosen to join the neighbouring frames.
+        start: ``"cold"`` or ``"warm"``.
+        prototype: the mesh prototype the fit deformed.
+        losses: loss terms at the kept parameters.
+        curve: the loss terms at every optimisation step of the kept prototype.
+        seconds: wall time of the fit.
+    """
+
+    index: int
+    detection_box: Box
+    crop_box: Box
+    crop_camera: PinholeCamera
+    state: ObjectState
+    start: str
+    prototype: str
+    losses: dict[str, float]
+    curve: list[dict[str, float]]
+    seconds: float
+
+    def reversed(self) -> FrameResult:
+        """The same fit with its motion run backwards in time."""
+        state = dataclasses.replace(self.state, motion=self.state.motion.reversed())
+        return dataclasses.replace(self, state=state)
+
+
+def result_path(folder: Path, index: int) -> Path:
+    """Where the result of frame ``index`` lives in a run folder."""
+    return folder / "frames" / f"frame_{index:05d}.pt"
+
+
+def save_result(folder: Path, result: FrameResult) -> None:
+    """Write ``result`` into the run ``folder``, atomically."""
+    s = result.state
+    record: dict[str, Any] = {
+        "index": result.index,
+        "detection_box": list(result.detection_box),
+        "crop_box": list(result.crop_box),
+        "crop_camera": dataclasses.asdict(result.crop_camera),
+        "vertices": s.vertices.detach().cpu(),
+        "faces": s.topology.faces.cpu(),
+        "uvs": s.topology.uvs.cpu(),
+        "face_uvs": s.topology.face_uvs.cpu(),
+        "texture": s.texture.detach().cpu(),
+        "motion": {k: getattr(s.motion, k).detach().cpu() for k in ("x0", "dx", "rot0", "omega")},
+        "start": result.start,
+        "prototype": result.prototype,
+        "losses": dict(result.losses),
+        "curve": list(result.curve),
+        "seconds": result.seconds,
+    }
+    buffer = io.BytesIO()
+    torch.save(record, buffer)
+    atomic_write_bytes(result_path(folder, result.index), buffer.getvalue())
+
+
+def load_result(path: Path) -> FrameResult:
+    """Read a result written by :func:`save_result` (tensors on the CPU)."""
+    try:
+        r = torch.load(path, map_location="cpu", weights_only=True)
+        topology = MeshTopology.build(r["faces"], r["uvs"], r["face_uvs"])
+        state = ObjectState(r["vertices"], topology, r["texture"], Motion(**r["motion"]))
+        return FrameResult(
+            index=int(r["index"]),
+            detection_box=tuple(r["detection_box"]),
+            crop_box=tuple(r["crop_box"]),
+            crop_camera=PinholeCamera(**r["crop_camera"]),
+            state=state,
+            start=r["start"],
+            prototype=r["prototype"],
+            losses=r["losses"],
+            curve=r["curve"],
+            seconds=float(r["seconds"]),
+        )
+    except (OSError, RuntimeError, KeyError, TypeError, EOFError) as exc:
+        raise SfbError(f"cannot read the frame result {path}: {exc}") from None
+
+
+def load_results(folder: Path) -> dict[int, FrameResult]:
+    """Every frame result saved in a run ``folder``, by frame index."""
+    results = (load_result(p) for p in sorted((folder / "frames").glob("frame_*.pt")))
+    return {r.index: r for r in results}

@@ -1,0 +1,99 @@
+"""Stage 2, background: pair every frame with the static scene behind the moving object.
+
+Three sources, as the paper and users need them:
+- ``running``: the per-pixel median of the K frames before this one (paper: K = 5). The first
+  K frames have no K predecessors; they take the median of the other frames among the first
+  K + 1, so the clip's start gets a background too. Only K + 1 frames are held in memory.
+- ``global``: the median of frames spread evenly over the whole clip (a first pass reads them);
+  for a camera that never moves and objects that never rest.
+- a user-supplied image.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from itertools import chain, islice
+from pathlib import Path
+
+import torch
+
+from sfb_video.checks import ConfigError, SfbError
+from sfb_video.config import VideoConfig
+from sfb_video.imageio import read_image
+from stages.read import Frame, read_frames
+
+
+@dataclass(frozen=True)
+class FrameWithBackground:
+    """A frame and its background, both (3, H, W) in [0, 1]."""
+
+    index: int
+    image: torch.Tensor
+    background: torch.Tensor
+
+
+def _median(images: list[torch.Tensor]) -> torch.Tensor:
+    return torch.stack(images).median(dim=0).values
+
+
+def running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBackground]:
+    """Pair each frame with the median of the ``window`` frames before it (see module docstring)."""
+    if window < 1:
+        raise ConfigError(f"video.background_window must be at least 1, got {window}")
+    stream = iter(frames)
+    head = list(islice(stream, window + 1))
+    if len(head) < 2:
+        raise SfbError("a running-median background needs at least 2 frames; give a background image instead")
+    for frame in head[:window]:
+        yield FrameWithBackground(frame.index, frame.image, _median([f.image for f in head if f is not frame]))
+    previous = deque((f.image for f in head[:window]), maxlen=window)
+    for frame in chain(head[window:], stream):
+        yield FrameWithBackground(frame.index, frame.image, _median(list(previous)))
+        previous.append(frame.image)
+
+
+def global_median(path: Path, samples: int, frame_count: int | None) -> torch.Tensor:
+    """(3, H, W) median of up to ``samples`` frames spread evenly over the clip at ``path``."""
+    if samples < 1:
+        raise ConfigError(f"video.global_samples must be at least 1, got {samples}")
+    if frame_count is None:
+        frame_count = sum(1 for _ in read_frames(path))
+    step = max(1, frame_count // samples)
+    # Kept as 8-bit: the median of many large frames would otherwise dominate memory.
+    kept = [(f.image * 255).round().to(torch.uint8) for f in read_frames(path) if f.index % step == 0]
+    return _median(kept[:samples]).float() / 255
+
+
+def fixed_background(frames: Iterable[Frame], background: torch.Tensor) -> Iterator[FrameWithBackground]:
+    """Pair every frame with one given background image."""
+    for frame in frames:
+        if frame.image.shape != background.shape:
+            raise SfbError(
+                f"the background is {background.shape[2]}x{background.shape[1]} but the frames are "
+                f"{frame.image.shape[2]}x{frame.image.shape[1]}"
+            )
+        yield FrameWithBackground(frame.index, frame.image, background)
+
+
+def with_backgrounds(
+    path: Path,
+    config: VideoConfig,
+    frame_count: int | None,
+    frames: range | None = None,
+    background: Path | None = None,
+) -> Iterator[FrameWithBackground]:
+    """The frames of ``path`` (those in ``frames`` when given) with their backgrounds.
+
+    Args:
+        background: a background image; without it ``config.background`` says how to estimate one.
+    """
+    stream = read_frames(path, frames)
+    if background is not None:
+        return fixed_background(stream, read_image(background))
+    if config.background == "running":
+        return running_median(stream, config.background_window)
+    if config.background == "global":
+        return fixed_background(stream, global_median(path, config.global_samples, frame_count))
+    raise ConfigError(f"video.background must be 'running' or 'global', got {config.background!r}")

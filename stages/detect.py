@@ -1,0 +1,110 @@
+"""Stage 3, detect: find the fast moving object (FMO) in a frame, or report that there is none.
+
+The difference D = ||I - B||_2 > threshold is opened to remove noise. An FMO travels further
+than its own size within one frame, so the pixels it covers now differ from the background in
+neither the frame two before nor the frame two after, while a slow mover (an arm, a person) or
+a change of the scene covers much the same pixels then: pixels that differ in those frames too
+are dropped, and what is left is split into 8-connected blobs. A tracked object is looked for
+near where its motion predicts it, among blobs large enough for its predicted size; otherwise
+the largest blob wins.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import torch
+
+from sfb_video.config import DetectConfig
+from sfb_video.crop import Box
+
+
+@dataclass(frozen=True)
+class Detection:
+    """The object found in one frame.
+
+    Attributes:
+        index: the frame's index.
+        box: (x, y, w, h) tight box of the object's blob.
+        mask: (H, W) bool, the blob.
+    """
+
+    index: int
+    box: Box
+    mask: torch.Tensor
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Where a tracked object should appear: the (u, v) pixel centre of its next exposure's
+    streak, and its apparent diameter in pixels."""
+
+    centre: tuple[float, float]
+    diameter: float
+
+
+def difference_mask(image: torch.Tensor, background: torch.Tensor, config: DetectConfig) -> torch.Tensor:
+    """(H, W) bool: ||I - B||_2 > threshold over RGB, opened by an ``open_px`` square."""
+    diff = (image - background).norm(dim=0) > config.threshold
+    mask = diff.cpu().numpy().astype(np.uint8)
+    if config.open_px > 1:
+        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((config.open_px, config.open_px), np.uint8))
+    return torch.from_numpy(mask.astype(bool))
+
+
+def moving_mask(mask: torch.Tensor, neighbours: list[torch.Tensor], config: DetectConfig) -> torch.Tensor:
+    """(H, W) bool: the pixels of ``mask`` that differ in none of the ``neighbours`` (grown by
+    ``motion_px``), opened again. Removing them pixel by pixel, not blob by blob, keeps a streak
+    that touches a slow mover (a ball passing an arm) apart from it."""
+    kernel = np.ones((2 * config.motion_px + 1,) * 2, np.uint8)
+    keep = mask.cpu().numpy().astype(bool)
+    for n in neighbours:
+        keep &= ~cv2.dilate(n.cpu().numpy().astype(np.uint8), kernel).astype(bool)
+    out = keep.astype(np.uint8)
+    if config.open_px > 1:
+        out = cv2.morphologyEx(out, cv2.MORPH_OPEN, np.ones((config.open_px, config.open_px), np.uint8))
+    return torch.from_numpy(out.astype(bool))
+
+
+def detect(
+    index: int,
+    mask: torch.Tensor,
+    neighbours: list[torch.Tensor],
+    prediction: Prediction | None,
+    config: DetectConfig,
+) -> Detection | None:
+    """The FMO among the blobs of one frame's difference ``mask``, or None.
+
+    Args:
+        index: the frame's index.
+        mask: (H, W) bool difference mask of this frame (:func:`difference_mask`).
+        neighbours: difference masks of the frames two before and two after, where there are.
+        prediction: where a tracked object should be, if one is tracked.
+        config: thresholds.
+    """
+    moving = moving_mask(mask, neighbours, config).numpy().astype(np.uint8)
+    count, labels, stats, centroids = cv2.connectedComponentsWithStats(moving, connectivity=8)
+    min_area = config.min_area_px
+    if prediction is not None:
+        min_area = max(min_area, config.min_fill * math.pi / 4 * prediction.diameter**2)
+    best: tuple[float, int] | None = None
+    for label in range(1, count):
+        area = float(stats[label, cv2.CC_STAT_AREA])
+        if area < min_area:
+            continue
+        score = area
+        if prediction is not None:
+            w, h = stats[label, 2:4]
+            distance = float(np.hypot(*(centroids[label] - np.asarray(prediction.centre))))
+            if distance > config.gate * max(prediction.diameter, 1.0) + max(w, h) / 2:
+                continue
+            score = -distance
+        if best is None or score > best[0]:
+            best = (score, label)
+    if best is None:
+        return None
+    x, y, w, h = (int(v) for v in stats[best[1], :4])
+    return Detection(index, (x, y, w, h), torch.from_numpy(labels == best[1]))

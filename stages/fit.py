@@ -1,0 +1,118 @@
+"""Stage 4, fit: one detected frame -> its :class:`~sfb_video.results.FrameResult`.
+
+A track's first frame starts cold (every prototype, full iterations). Each next frame starts
+warm from the previous frame's mesh, texture and motion, its start pose predicted by continuing
+that motion across the gap between the two exposures. One frame cannot tell which end of its
+streak came first; :func:`join` picks the directions that make consecutive frames meet end to
+start.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from sfb_video.config import Config
+from sfb_video.crop import make_crop
+from sfb_video.fitter import WarmStart, fit_frame
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.geometry.rotation import axis_angle_to_matrix
+from sfb_video.model.motion import Motion
+from sfb_video.results import FrameResult
+from stages.background import FrameWithBackground
+from stages.detect import Detection, Prediction
+
+
+def continue_motion(motion: Motion, frames_ahead: int, exposure_fraction: float) -> Motion:
+    """The motion of the exposure ``frames_ahead`` frames later, at constant velocity and spin.
+
+    One frame interval is 1 / ``exposure_fraction`` exposures, so the next exposure starts that
+    many multiples of the exposure's own translation and rotation after this one's start.
+    """
+    k = frames_ahead / exposure_fraction
+    rot0 = axis_angle_to_matrix(k * motion.omega) @ motion.rot0
+    return Motion(motion.x0 + k * motion.dx, motion.dx, rot0, motion.omega)
+
+
+def predict(motion: Motion, camera: PinholeCamera) -> Prediction:
+    """Where ``motion``'s streak appears in ``camera``: the centre of its middle, its diameter."""
+    uv, depth = camera.project(motion.x0 + 0.5 * motion.dx)
+    return Prediction((float(uv[0]), float(uv[1])), float(camera.fy / depth))
+
+
+def fit_detection(
+    frame: FrameWithBackground,
+    detection: Detection,
+    camera: PinholeCamera,
+    config: Config,
+    previous: FrameResult | None,
+    device: torch.device,
+) -> FrameResult:
+    """Fit the object of one frame, warm from ``previous`` when given (a frame of the same track).
+
+    Args:
+        frame: the frame and its background, (3, H, W) each.
+        detection: the object's blob in the frame.
+        camera: the clip's full-frame camera.
+        config: crop, fit, render and video settings.
+        previous: the result of an earlier frame of the same track, or None for a cold start.
+        device: where to fit.
+
+    Raises:
+        NoObjectError: when the crop around the detection shows no difference after all.
+    """
+    image, background = frame.image.to(device), frame.background.to(device)
+    crop = make_crop(image, background, detection.box, camera, config.crop, detection.mask.to(device))
+    warm = None
+    if previous is not None:
+        motion = continue_motion(previous.state.motion, frame.index - previous.index, config.video.exposure_fraction)
+        warm = WarmStart(previous.prototype, previous.state.vertices, previous.state.texture, motion.to(device))
+    fit = fit_frame(crop, config.fit, config.render, warm=warm)
+    seconds = fit.seconds
+    if warm is not None and fit.losses["image"] > config.video.retry_ratio * previous.losses["image"]:
+        # The track's shape or prediction no longer explains this frame (a bounce, a turn, a
+        # bad previous fit): start cold as well and keep whichever explains the frame better.
+        cold = fit_frame(crop, config.fit, config.render)
+        seconds += cold.seconds
+        if cold.losses["image"] < fit.losses["image"]:
+            fit, warm = cold, None
+    state = fit.state
+    return FrameResult(
+        index=frame.index,
+        detection_box=detection.box,
+        crop_box=crop.box,
+        crop_camera=crop.camera,
+        state=type(state)(state.vertices.cpu(), state.topology.to("cpu"), state.texture.cpu(), state.motion.to("cpu")),
+        start="cold" if warm is None else "warm",
+        prototype=fit.prototype,
+        losses=fit.losses,
+        curve=fit.curves[fit.prototype],
+        seconds=seconds,
+    )
+
+
+def _gap(previous: FrameResult, current: FrameResult, camera: PinholeCamera, exposure_fraction: float) -> float:
+    predicted = continue_motion(previous.state.motion, current.index - previous.index, exposure_fraction)
+    uv = camera.project(torch.stack((predicted.x0, current.state.motion.x0)))[0]
+    return float((uv[0] - uv[1]).norm())
+
+
+def join(
+    previous: FrameResult,
+    current: FrameResult,
+    camera: PinholeCamera,
+    exposure_fraction: float,
+    may_flip_previous: bool,
+) -> tuple[FrameResult, FrameResult]:
+    """Choose the time directions of two frames of one track so that they join end to start.
+
+    The current frame's start should be where the previous frame's motion, continued across the
+    gap, puts it (in image pixels, where the fit is surest). The previous frame may be reversed
+    too when nothing before it fixed its direction (the first frame of a track).
+
+    Returns:
+        previous and current, each possibly reversed.
+    """
+    options = [(p, c) for p in (previous, previous.reversed()) for c in (current, current.reversed())]
+    if not may_flip_previous:
+        options = options[:2]
+    return min(options, key=lambda pc: _gap(pc[0], pc[1], camera, exposure_fraction))

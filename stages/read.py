@@ -1,0 +1,65 @@
+"""Stage 1, read: a video file -> its description and a stream of frames.
+
+Frames are decoded one at a time (memory does not grow with the clip); grayscale and 16-bit
+sources come out as RGB in [0, 1] (see ``sfb_video.video``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from sfb_video.checks import SfbError
+from sfb_video.config import VideoConfig
+from sfb_video.video import VideoInfo, VideoReader
+
+MIN_SIDE = 16
+"""Frames smaller than this on a side cannot hold a streak and an object box around it."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One decoded frame.
+
+    Attributes:
+        index: position in the clip, from 0.
+        image: (3, H, W) RGB in [0, 1].
+    """
+
+    index: int
+    image: torch.Tensor
+
+
+def probe(path: Path, config: VideoConfig) -> VideoInfo:
+    """Open ``path``, check its frame size and return its description without decoding it.
+
+    Raises:
+        SfbError: missing or unreadable file, frames too small or too large.
+    """
+    with VideoReader(path) as reader:
+        info = reader.info
+    if min(info.width, info.height) < MIN_SIDE:
+        raise SfbError(f"{path}: frames of {info.width}x{info.height} are too small (at least {MIN_SIDE} px a side)")
+    if max(info.width, info.height) > config.max_side:
+        raise SfbError(
+            f"{path}: frames of {info.width}x{info.height} exceed video.max_side={config.max_side}; "
+            "downscale the clip or raise the limit"
+        )
+    return info
+
+
+def read_frames(path: Path, frames: range | None = None) -> Iterator[Frame]:
+    """Decode the frames of ``path`` in order, those in ``frames`` only when it is given.
+
+    Raises:
+        SfbError: when the file cannot be decoded or holds no frame.
+    """
+    with VideoReader(path) as reader:
+        for index, image in enumerate(reader):
+            if frames is not None and index >= frames.stop:
+                return
+            if frames is None or index in frames:
+                yield Frame(index, image)

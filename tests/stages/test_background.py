@@ -1,0 +1,52 @@
+"""The background stage: running median, its start-of-clip rule, and a given image."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from sfb_video.checks import SfbError
+from stages.background import fixed_background, running_median
+from stages.read import Frame
+
+
+def _frames(n: int, h: int = 6, w: int = 8) -> list[Frame]:
+    # A static grey scene with a bright square passing through; frame k holds it at column k.
+    frames = []
+    for k in range(n):
+        image = torch.full((3, h, w), 0.5)
+        image[:, 2:4, k : k + 1] = 1.0
+        frames.append(Frame(k, image))
+    return frames
+
+
+def test_running_median_removes_a_mover_and_uses_only_earlier_frames() -> None:
+    frames = _frames(8)
+    out = list(running_median(iter(frames), 3))
+    assert [f.index for f in out] == list(range(8))
+    for f in out:
+        assert torch.equal(f.background, torch.full_like(f.background, 0.5))
+    # From frame K on the background is the median of exactly the K previous frames: a change
+    # that appears in frame 5 must not be in frame 5's own background.
+    frames[5].image[:, 0, 0] = 0.0
+    frames[6].image[:, 0, 0] = 0.0
+    frames[7].image[:, 0, 0] = 0.0
+    out = list(running_median(iter(frames), 3))
+    assert out[5].background[0, 0, 0] == 0.5
+    assert out[7].background[0, 0, 0] == 0.0  # two of the three previous frames have it
+
+
+def test_running_median_at_the_start_of_a_short_clip() -> None:
+    out = list(running_median(iter(_frames(3)), 5))
+    assert len(out) == 3
+    assert all(torch.equal(f.background, torch.full_like(f.background, 0.5)) for f in out)
+
+
+def test_running_median_needs_two_frames() -> None:
+    with pytest.raises(SfbError, match="at least 2 frames"):
+        list(running_median(iter(_frames(1)), 5))
+
+
+def test_fixed_background_must_match_the_frame_size() -> None:
+    with pytest.raises(SfbError, match="but the frames are"):
+        list(fixed_background(iter(_frames(2)), torch.zeros(3, 5, 5)))

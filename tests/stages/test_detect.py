@@ -1,0 +1,53 @@
+"""The detection stage: a fast mover is found, a slow one is not, a track follows its prediction."""
+
+from __future__ import annotations
+
+import torch
+
+from sfb_video.config import load_config
+from stages.detect import Prediction, detect, difference_mask
+
+CONFIG = load_config("default").detect
+
+
+def _mask(*boxes: tuple[int, int, int, int], size: tuple[int, int] = (60, 80)) -> torch.Tensor:
+    mask = torch.zeros(size, dtype=torch.bool)
+    for x, y, w, h in boxes:
+        mask[y : y + h, x : x + w] = True
+    return mask
+
+
+def test_difference_mask_thresholds_the_colour_distance_and_drops_specks() -> None:
+    background = torch.full((3, 40, 40), 0.5)
+    image = background.clone()
+    image[:, 10:20, 10:20] += 0.1  # ||diff|| = 0.17 > 0.1
+    image[:, 30:31, 30:31] = 1.0  # a one-pixel speck, opened away
+    image[0, 0:10, 30:40] += 0.08  # below the threshold
+    mask = difference_mask(image, background, CONFIG)
+    assert mask[10:20, 10:20].all() and int(mask.sum()) == 100
+
+
+def test_the_fast_mover_is_chosen_over_a_larger_slow_one() -> None:
+    arm = (50, 20, 25, 30)
+    ball = (5, 5, 20, 8)
+    mask = _mask(arm, ball)
+    # The arm covers nearly the same pixels a frame before and after; the ball was elsewhere.
+    neighbours = [_mask((52, 21, 25, 30), (30, 40, 20, 8)), _mask((48, 19, 25, 30))]
+    found = detect(3, mask, neighbours, None, CONFIG)
+    assert found is not None and found.box == ball
+
+
+def test_only_slow_movers_means_no_object() -> None:
+    mask = _mask((50, 20, 25, 30))
+    assert detect(0, mask, [_mask((51, 20, 25, 30))], None, CONFIG) is None
+    assert detect(0, torch.zeros(60, 80, dtype=torch.bool), [], None, CONFIG) is None
+
+
+def test_a_tracked_object_is_looked_for_near_its_prediction() -> None:
+    big, small = (40, 30, 30, 20), (5, 5, 12, 6)
+    mask = _mask(big, small)
+    assert detect(0, mask, [], None, CONFIG).box == big  # no track: the largest
+    near_small = Prediction((11.0, 8.0), 6.0)
+    assert detect(0, mask, [], near_small, CONFIG).box == small
+    far_away = Prediction((300.0, 300.0), 6.0)
+    assert detect(0, mask, [], far_away, CONFIG) is None

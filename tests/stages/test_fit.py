@@ -1,0 +1,79 @@
+"""Continuing a motion across the gap between exposures, and joining frames end to start."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.geometry.mesh import MeshTopology
+from sfb_video.geometry.prototypes import load_prototype
+from sfb_video.geometry.rotation import axis_angle_to_matrix, rotation_angle_deg
+from sfb_video.model.motion import Motion
+from sfb_video.model.scene import ObjectState
+from sfb_video.results import FrameResult, load_result, save_result
+from stages.fit import continue_motion, join, predict
+
+CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
+
+
+def _motion(x0: tuple[float, float, float], dx: tuple[float, float, float], spin: float = 0.0) -> Motion:
+    return Motion(torch.tensor(x0), torch.tensor(dx), torch.eye(3), torch.tensor([0.0, 0.0, spin]))
+
+
+def _result(index: int, motion: Motion) -> FrameResult:
+    vertices, topology = load_prototype("sphere")
+    state = ObjectState(vertices, topology, torch.rand(3, 8, 8, generator=torch.Generator().manual_seed(index)), motion)
+    box = (10, 20, 30, 40)
+    return FrameResult(index, box, box, CAMERA, state, "cold", "sphere", {"image": 0.1}, [{"image": 0.1}], 1.0)
+
+
+def test_continue_motion_crosses_the_gap_at_constant_velocity_and_spin() -> None:
+    m = _motion((0.0, 0.0, 5.0), (1.0, 0.5, 0.0), spin=0.4)
+    nxt = continue_motion(m, 1, 0.8)  # the next exposure starts 1 / 0.8 exposures later
+    assert torch.allclose(nxt.x0, torch.tensor([1.25, 0.625, 5.0]))
+    assert torch.allclose(nxt.dx, m.dx)
+    expected = axis_angle_to_matrix(torch.tensor([0.0, 0.0, 0.5]))
+    assert float(rotation_angle_deg(nxt.rot0, expected)) < 1e-3
+    two = continue_motion(m, 2, 1.0)
+    assert torch.allclose(two.x0, torch.tensor([2.0, 1.0, 5.0]))
+
+
+def test_prediction_is_the_projected_middle_of_the_next_streak() -> None:
+    m = _motion((0.0, 0.0, 5.0), (1.0, 0.0, 0.0))
+    p = predict(m, CAMERA)
+    assert math.isclose(p.centre[0], CAMERA.cx + CAMERA.fx * 0.5 / 5, rel_tol=1e-5)
+    assert math.isclose(p.diameter, CAMERA.fy / 5, rel_tol=1e-5)
+
+
+def test_join_reverses_the_frame_that_runs_backwards() -> None:
+    first = _result(0, _motion((0.0, 0.0, 5.0), (1.0, 0.0, 0.0)))
+    # Frame 1 was fitted end-to-start: its start is where the true motion ends.
+    second = _result(1, _motion((2.0, 0.0, 5.0), (-1.0, 0.0, 0.0)))
+    a, b = join(first, second, CAMERA, 1.0, may_flip_previous=False)
+    assert a is first
+    assert torch.allclose(b.state.motion.x0, torch.tensor([1.0, 0.0, 5.0]))
+    assert torch.allclose(b.state.motion.dx, torch.tensor([1.0, 0.0, 0.0]))
+
+
+def test_join_may_reverse_the_first_frame_of_a_track() -> None:
+    first = _result(0, _motion((1.0, 0.0, 5.0), (-1.0, 0.0, 0.0)))  # reversed
+    second = _result(1, _motion((1.0, 0.0, 5.0), (1.0, 0.0, 0.0)))
+    a, b = join(first, second, CAMERA, 1.0, may_flip_previous=True)
+    assert torch.allclose(a.state.motion.x0, torch.tensor([0.0, 0.0, 5.0]))
+    assert b is second
+    kept, _ = join(first, second, CAMERA, 1.0, may_flip_previous=False)
+    assert kept is first
+
+
+def test_results_round_trip_through_the_run_folder(tmp_path) -> None:
+    result = _result(7, _motion((0.1, 0.2, 5.0), (1.0, 0.5, 0.2), spin=0.3))
+    save_result(tmp_path, result)
+    back = load_result(tmp_path / "frames" / "frame_00007.pt")
+    assert back.index == 7 and back.crop_camera == CAMERA and back.losses == result.losses
+    assert torch.equal(back.state.texture, result.state.texture)
+    assert torch.equal(back.state.topology.edges, result.state.topology.edges)
+    for name in ("x0", "dx", "rot0", "omega"):
+        assert torch.equal(getattr(back.state.motion, name), getattr(result.state.motion, name))
+    assert isinstance(back.state.topology, MeshTopology)

@@ -1,0 +1,403 @@
+"""The rerun recording of a clip: what lands where, on which timeline, and that it is written atomically."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import rerun as rr
+import torch
+from rerun.chunk import Chunk, RrdReader
+
+from sfb_video.checks import SfbError
+from sfb_video.config import load_config
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.geometry.prototypes import load_prototype
+from sfb_video.imageio import to_uint8
+from sfb_video.model.formation import exposure_times
+from sfb_video.model.motion import Motion
+from sfb_video.model.scene import ObjectState
+from sfb_video.recording import Recorder
+
+CAMERA = PinholeCamera.from_fov(64, 48, 45.0)
+N_SUB = 3  # TSR sub-frames per fitted frame
+FITTED = (0, 2)  # frame 1 has no detection and no fit
+BOX = (20, 10, 12, 9)
+CURVE_STEPS = 4
+
+
+@dataclass
+class Inputs:
+    state: ObjectState
+    images: list[torch.Tensor]
+    background: torch.Tensor
+    mask: torch.Tensor
+    reconstruction: torch.Tensor
+    subframes: torch.Tensor
+    losses: dict[str, float]
+    curve: list[dict[str, float]]
+    trajectory: np.ndarray
+
+
+@dataclass
+class Recorded:
+    path: Path
+    chunks: list[Chunk]
+    inputs: Inputs
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _strict_rerun() -> Iterator[None]:
+    # rerun otherwise turns a malformed archetype into a warning and logs nothing.
+    previous = rr.strict_mode()
+    rr.set_strict_mode(True)
+    yield
+    rr.set_strict_mode(previous)
+
+
+@pytest.fixture(scope="module")
+def inputs() -> Inputs:
+    gen = torch.Generator().manual_seed(0)
+    vertices, topology = load_prototype("sphere")
+    motion = Motion(
+        x0=torch.tensor([0.0, 0.0, 5.0]),
+        dx=torch.tensor([0.5, 0.0, 0.0]),
+        rot0=torch.eye(3),
+        omega=torch.tensor([0.0, 0.0, 0.5]),
+    )
+    state = ObjectState(vertices, topology, torch.rand(3, 16, 16, generator=gen), motion)
+    background = torch.rand(3, CAMERA.height, CAMERA.width, generator=gen)
+    render = load_config("fast").render
+    reconstruction = state.render_blurred(CAMERA, background, N_SUB * 2, render)
+    subframes = state.render_subframes(CAMERA, background, N_SUB, 2, render)
+    mask = torch.zeros(CAMERA.height, CAMERA.width, dtype=torch.bool)
+    mask[10:19, 20:32] = True
+    return Inputs(
+        state=state,
+        images=[torch.rand(3, CAMERA.height, CAMERA.width, generator=gen) for _ in range(3)],
+        background=background,
+        mask=mask,
+        reconstruction=reconstruction,
+        subframes=subframes,
+        losses={"total": 0.25, "data term": 0.125},
+        curve=[{"total": 1.0 / (s + 1), "data term": 0.5 / (s + 1)} for s in range(CURVE_STEPS)],
+        trajectory=np.array([[0.0, 0.0, 5.0], [0.5, 0.0, 5.0], [1.0, 0.1, 5.2]], dtype=np.float32),
+    )
+
+
+def record_clip(path: Path, inputs: Inputs, name: str = "clip") -> None:
+    """Log three frames, the middle one without a detection or a fit."""
+    with Recorder(path, CAMERA, name) as rec:
+        for i, image in enumerate(inputs.images):
+            rec.log_frame(i, image, inputs.background)
+            if i in FITTED:
+                rec.log_detection(i, BOX, inputs.mask)
+                rec.log_fit(i, inputs.state, inputs.reconstruction, inputs.subframes, inputs.losses, inputs.curve)
+            else:
+                rec.log_detection(i, None, None)
+            rec.log_trajectory(inputs.trajectory[: i + 1])
+
+
+@pytest.fixture(scope="module")
+def recorded(inputs: Inputs, tmp_path_factory: pytest.TempPathFactory) -> Recorded:
+    path = tmp_path_factory.mktemp("rec") / "recording.rrd"
+    record_clip(path, inputs)
+    return Recorded(path, RrdReader(path).stream().to_chunks(), inputs)
+
+
+# --------------------------------------------------------------------------------------------------
+# Reading a recording back
+
+
+def entity_paths(chunks: list[Chunk]) -> set[str]:
+    return {c.entity_path for c in chunks}
+
+
+def rows(chunks: list[Chunk], entity: str, component: str, timeline: str | None) -> list[tuple[int | None, Any]]:
+    """(time on ``timeline``, value) of every row of ``entity`` where ``component`` is set, by time.
+
+    ``timeline=None`` selects static rows; otherwise only rows on that timeline are returned.
+    """
+    out = []
+    for chunk in chunks:
+        if chunk.entity_path != entity:
+            continue
+        if (timeline is None) != chunk.is_static or (timeline is not None and timeline not in chunk.timeline_names):
+            continue
+        batch = chunk.to_record_batch()
+        if component not in batch.schema.names:
+            continue
+        times = batch.column(timeline).to_pylist() if timeline else [None] * batch.num_rows
+        out += [(t, v) for t, v in zip(times, batch.column(component).to_pylist(), strict=True) if v is not None]
+    return sorted(out, key=lambda tv: -1 if tv[0] is None else tv[0])
+
+
+def times(chunks: list[Chunk], entity: str, component: str, timeline: str) -> list[int]:
+    return [t for t, _ in rows(chunks, entity, component, timeline)]
+
+
+def batch_at(chunks: list[Chunk], entity: str, component: str, timeline: str | None, time: int | None = None) -> list:
+    """The instances of ``component`` in the one row of ``entity`` at ``time`` (static if ``timeline`` is None)."""
+    matches = [v for t, v in rows(chunks, entity, component, timeline) if t == time]
+    assert len(matches) == 1, f"{entity} {component} at {timeline}={time}: {len(matches)} rows"
+    return matches[0]
+
+
+def one_at(chunks: list[Chunk], entity: str, component: str, timeline: str | None, time: int | None = None) -> Any:
+    """The single instance of ``component`` in the one row of ``entity`` at ``time``."""
+    (value,) = batch_at(chunks, entity, component, timeline, time)
+    return value
+
+
+def column_major(flat: list[float]) -> np.ndarray:
+    return np.asarray(flat).reshape(3, 3).T
+
+
+# --------------------------------------------------------------------------------------------------
+# Content
+
+
+def test_the_recording_holds_every_entity(recorded: Recorded) -> None:
+    expected = {
+        "/world",
+        "/world/camera",
+        "/world/camera/image",
+        "/world/camera/image/detection",
+        "/world/camera/image/mask",
+        "/world/object",
+        "/world/trajectory",
+        "/background",
+        "/reconstruction",
+        "/tsr",
+        "/losses/total",
+        "/losses/data\\ term",
+        "/fit/total",
+        "/fit/data\\ term",
+    }
+    assert expected <= entity_paths(recorded.chunks)
+    assert [e.application_id for e in RrdReader(recorded.path).recordings()] == ["sfb-video"]
+
+
+def test_the_frame_timeline_holds_the_logged_frames(recorded: Recorded) -> None:
+    frames = set()
+    for chunk in recorded.chunks:
+        if "frame" in chunk.timeline_names:
+            frames |= set(chunk.to_record_batch().column("frame").to_pylist())
+    assert frames == {0, 1, 2}
+    assert times(recorded.chunks, "/world/camera/image", "EncodedImage:blob", "frame") == [0, 1, 2]
+    assert times(recorded.chunks, "/background", "EncodedImage:blob", "frame") == [0, 1, 2]
+    assert times(recorded.chunks, "/reconstruction", "EncodedImage:blob", "frame") == list(FITTED)
+    # No wall-clock timeline: the viewer should offer only ours.
+    names = {name for chunk in recorded.chunks for name in chunk.timeline_names}
+    assert names == {"frame", "subframe", "step"}
+
+
+def test_images_are_jpeg_and_masks_are_not(recorded: Recorded) -> None:
+    for entity in ("/world/camera/image", "/background", "/reconstruction", "/tsr"):
+        timeline = "subframe" if entity == "/tsr" else "frame"
+        media = {v[0] for _, v in rows(recorded.chunks, entity, "EncodedImage:media_type", timeline)}
+        assert media == {"image/jpeg"}, entity
+    buffer = one_at(recorded.chunks, "/world/camera/image/mask", "SegmentationImage:buffer", "frame", 0)
+    ids = np.frombuffer(bytes(buffer), dtype=np.uint8).reshape(CAMERA.height, CAMERA.width)
+    assert np.array_equal(ids, recorded.inputs.mask.numpy().astype(np.uint8))
+    assert rows(recorded.chunks, "/world/camera/image", "AnnotationContext:context", None)  # names class 1
+
+
+def test_detection_box_and_a_frame_without_one_clears_it(recorded: Recorded) -> None:
+    entity = "/world/camera/image/detection"
+    # rerun stores boxes as centres and half sizes; pixels x .. x + w - 1 span [x, x + w] in rerun.
+    assert times(recorded.chunks, entity, "Boxes2D:centers", "frame") == list(FITTED)
+    x, y, w, h = BOX
+    assert one_at(recorded.chunks, entity, "Boxes2D:centers", "frame", 0) == [x + w / 2, y + h / 2]
+    assert one_at(recorded.chunks, entity, "Boxes2D:half_sizes", "frame", 0) == [w / 2, h / 2]
+    # Without a Clear the viewer would keep showing frame 0's box on frame 1.
+    for cleared in (entity, "/world/camera/image/mask"):
+        assert times(recorded.chunks, cleared, "Clear:is_recursive", "frame") == [1]
+
+
+def test_pinhole_matches_the_camera(recorded: Recorded) -> None:
+    flat = one_at(recorded.chunks, "/world/camera", "Pinhole:image_from_camera", None)
+    k = column_major(flat)
+    assert k[0, 0] == pytest.approx(CAMERA.fx) and k[1, 1] == pytest.approx(CAMERA.fy)
+    # rerun puts pixel centres at half-integers, the project at integers.
+    assert k[0, 2] == pytest.approx(CAMERA.cx + 0.5) and k[1, 2] == pytest.approx(CAMERA.cy + 0.5)
+    assert one_at(recorded.chunks, "/world/camera", "Pinhole:resolution", None) == [CAMERA.width, CAMERA.height]
+    assert rows(recorded.chunks, "/world", "ViewCoordinates:xyz", None)
+
+
+def test_tsr_has_n_rows_per_fitted_frame_on_the_subframe_timeline_only(recorded: Recorded) -> None:
+    expected = [i * N_SUB + k for i in FITTED for k in range(N_SUB)]
+    assert times(recorded.chunks, "/tsr", "EncodedImage:blob", "subframe") == expected
+    assert not times(recorded.chunks, "/tsr", "EncodedImage:blob", "frame")
+
+
+def test_mesh_has_the_triangles_texcoords_and_texture_of_the_state(recorded: Recorded) -> None:
+    state = recorded.inputs.state
+    entity = "/world/object"
+    assert times(recorded.chunks, entity, "Mesh3D:triangle_indices", "frame") == list(FITTED)
+    # Stamped at each fitted frame's first sub-frame too, so the mesh shows while scrubbing sub-frames.
+    assert times(recorded.chunks, entity, "Mesh3D:triangle_indices", "subframe") == [i * N_SUB for i in FITTED]
+    triangles = np.asarray(batch_at(recorded.chunks, entity, "Mesh3D:triangle_indices", "frame", 0))
+    positions = np.asarray(batch_at(recorded.chunks, entity, "Mesh3D:vertex_positions", "frame", 0))
+    texcoords = np.asarray(batch_at(recorded.chunks, entity, "Mesh3D:vertex_texcoords", "frame", 0))
+    normals = np.asarray(batch_at(recorded.chunks, entity, "Mesh3D:vertex_normals", "frame", 0))
+    faces, face_uvs = state.topology.faces.numpy(), state.topology.face_uvs.numpy()
+    assert triangles.shape == faces.shape
+    assert texcoords.shape == (len(positions), 2) and normals.shape == positions.shape
+    # Corner by corner, the mesh's positions and UVs are the state's: rerun's v runs down the image
+    # like the project's, so no flip survives.
+    assert np.allclose(positions[triangles], state.vertices.numpy()[faces], atol=1e-6)
+    assert np.allclose(texcoords[triangles], state.topology.uvs.numpy()[face_uvs], atol=1e-6)
+    # A sphere centred on the origin: smooth unit normals point outwards.
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1, atol=1e-5)
+    assert (np.sum(normals * positions, axis=1) > 0).all()
+    texture = one_at(recorded.chunks, entity, "Mesh3D:albedo_texture_buffer", "frame", 0)
+    assert bytes(texture) == to_uint8(state.texture).tobytes()
+
+
+def test_object_pose_at_mid_exposure_and_at_each_subframe(recorded: Recorded) -> None:
+    motion = recorded.inputs.state.motion
+    entity = "/world/object"
+    for i in FITTED:
+        rot, pos = motion.at(torch.tensor([0.5]))
+        t = one_at(recorded.chunks, entity, "Transform3D:translation", "frame", i)
+        m = one_at(recorded.chunks, entity, "Transform3D:mat3x3", "frame", i)
+        assert np.allclose(t, pos[0].numpy(), atol=1e-6)
+        assert np.allclose(column_major(m), rot[0].numpy(), atol=1e-6)
+        rots, poss = motion.at(exposure_times(N_SUB))
+        for k in range(N_SUB):
+            t = one_at(recorded.chunks, entity, "Transform3D:translation", "subframe", i * N_SUB + k)
+            m = one_at(recorded.chunks, entity, "Transform3D:mat3x3", "subframe", i * N_SUB + k)
+            assert np.allclose(t, poss[k].numpy(), atol=1e-6)
+            assert np.allclose(column_major(m), rots[k].numpy(), atol=1e-6)
+    # Exactly one pose per fitted frame on the frame timeline: sub-frame poses must not shadow it.
+    assert times(recorded.chunks, entity, "Transform3D:translation", "frame") == list(FITTED)
+
+
+def test_losses_and_the_optimisation_curve(recorded: Recorded) -> None:
+    inputs = recorded.inputs
+    assert rows(recorded.chunks, "/losses/total", "Scalars:scalars", "frame") == [(i, [0.25]) for i in FITTED]
+    assert times(recorded.chunks, "/losses/data\\ term", "Scalars:scalars", "frame") == list(FITTED)
+    steps = rows(recorded.chunks, "/fit/total", "Scalars:scalars", "step")
+    assert sorted(steps) == sorted((s, [inputs.curve[s]["total"]]) for s in range(CURVE_STEPS) for _ in FITTED)
+    # Each curve row also carries its frame, so one frame's curve can be picked out.
+    assert times(recorded.chunks, "/fit/total", "Scalars:scalars", "frame") == sorted(
+        i for i in FITTED for _ in range(CURVE_STEPS)
+    )
+
+
+def test_trajectory_grows_frame_by_frame(recorded: Recorded) -> None:
+    entity = "/world/trajectory"
+    assert times(recorded.chunks, entity, "LineStrips3D:strips", "frame") == [0, 1, 2]
+    points = recorded.inputs.trajectory
+    assert np.allclose(one_at(recorded.chunks, entity, "LineStrips3D:strips", "frame", 2), points)
+    assert np.allclose(batch_at(recorded.chunks, entity, "Points3D:positions", "frame", 1), points[:2])
+
+
+def test_recording_id_comes_from_the_clip_name_unless_given(tmp_path: Path) -> None:
+    ids = []
+    for name, given in (("a", None), ("a", None), ("b", None), ("a", "mine")):
+        path = tmp_path / f"{len(ids)}.rrd"
+        with Recorder(path, CAMERA, name, recording_id=given):
+            pass
+        ids.append(RrdReader(path).recordings()[0].recording_id)
+    assert ids[0] == ids[1] != ids[2] and ids[3] == "mine"
+
+
+# --------------------------------------------------------------------------------------------------
+# Writing
+
+
+def test_two_recorders_coexist_without_mixing(inputs: Inputs, tmp_path: Path) -> None:
+    first, second = Recorder(tmp_path / "a.rrd", CAMERA, "a"), Recorder(tmp_path / "b.rrd", CAMERA, "b")
+    for i in range(3):
+        first.log_frame(i, inputs.images[i], inputs.background)
+        second.log_frame(10 + i, inputs.images[i], inputs.background)
+    second.log_detection(10, BOX, None)
+    first.close()
+    second.close()
+    a, b = (RrdReader(tmp_path / f"{n}.rrd").stream().to_chunks() for n in "ab")
+    assert times(a, "/world/camera/image", "EncodedImage:blob", "frame") == [0, 1, 2]
+    assert times(b, "/world/camera/image", "EncodedImage:blob", "frame") == [10, 11, 12]
+    assert "/world/camera/image/detection" in entity_paths(b) - entity_paths(a)
+
+
+def test_same_inputs_give_the_same_recording(recorded: Recorded, tmp_path: Path) -> None:
+    path = tmp_path / "again.rrd"
+    record_clip(path, recorded.inputs)
+    # Row and chunk ids are random; the layout and the data are not.
+    assert RrdReader(path).stream().collect().summary() == RrdReader(recorded.path).stream().collect().summary()
+    again = RrdReader(path).stream().to_chunks()
+    for entity, component, timeline in (
+        ("/world/object", "Mesh3D:vertex_positions", "frame"),
+        ("/tsr", "EncodedImage:blob", "subframe"),
+        ("/fit/total", "Scalars:scalars", "step"),
+    ):
+        assert rows(again, entity, component, timeline) == rows(recorded.chunks, entity, component, timeline)
+
+
+def test_the_file_appears_only_on_close(inputs: Inputs, tmp_path: Path) -> None:
+    path = tmp_path / "out" / "recording.rrd"
+    rec = Recorder(path, CAMERA, "clip")
+    rec.log_frame(0, inputs.images[0], inputs.background)
+    (tmp,) = path.parent.iterdir()
+    assert tmp.name.startswith(".") and tmp.name.endswith(".tmp.rrd") and not path.exists()
+    rec.close()
+    assert list(path.parent.iterdir()) == [path]
+    rec.close()  # idempotent
+    with pytest.raises(SfbError, match="closed"):
+        rec.log_frame(1, inputs.images[1], inputs.background)
+
+
+def test_abort_leaves_nothing(inputs: Inputs, tmp_path: Path) -> None:
+    rec = Recorder(tmp_path / "recording.rrd", CAMERA, "clip")
+    rec.log_frame(0, inputs.images[0], inputs.background)
+    rec.abort()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_exception_in_the_with_block_leaves_no_file(inputs: Inputs, tmp_path: Path) -> None:
+    (tmp_path / "recording.rrd").write_bytes(b"previous run")
+    with pytest.raises(RuntimeError, match="boom"), Recorder(tmp_path / "recording.rrd", CAMERA, "clip") as rec:
+        rec.log_frame(0, inputs.images[0], inputs.background)
+        raise RuntimeError("boom")
+    # The previous file is untouched, and no temporary is left behind.
+    assert [p.name for p in tmp_path.iterdir()] == ["recording.rrd"]
+    assert (tmp_path / "recording.rrd").read_bytes() == b"previous run"
+
+
+def test_wrong_image_shapes_are_clear_errors(inputs: Inputs, tmp_path: Path) -> None:
+    with Recorder(tmp_path / "recording.rrd", CAMERA, "clip") as rec:
+        with pytest.raises(SfbError, match=r"image must have shape \(3, 48, 64\)"):
+            rec.log_frame(0, torch.rand(3, 10, 10), inputs.background)
+        with pytest.raises(SfbError, match="subframes"):
+            rec.log_fit(0, inputs.state, inputs.reconstruction, inputs.subframes[0], {}, [])
+        with pytest.raises(SfbError, match="log a frame"):
+            rec.log_trajectory(inputs.trajectory)
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root can write into read-only folders")
+def test_read_only_folder_is_a_one_line_error(tmp_path: Path) -> None:
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        with pytest.raises(SfbError, match="cannot write the recording") as info:
+            Recorder(folder / "recording.rrd", CAMERA, "clip")
+        assert "\n" not in str(info.value)
+        assert list(folder.iterdir()) == []
+    finally:
+        folder.chmod(0o755)
+
+
+def test_unwritable_path_is_a_one_line_error(tmp_path: Path) -> None:
+    # A folder that is a file: fails for root too, through the same path as a read-only folder.
+    (tmp_path / "file").write_text("")
+    with pytest.raises(SfbError, match="cannot write the recording") as info:
+        Recorder(tmp_path / "file" / "recording.rrd", CAMERA, "clip")
+    assert "\n" not in str(info.value)
