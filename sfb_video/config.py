@@ -121,6 +121,9 @@ class VideoConfig:
     """Sub-frames rendered per blurred frame in ``tsr.mp4``."""
     warm_start: bool = True
     """Start each frame of a track from the previous frame's result (off: every frame cold)."""
+    track_prototypes: tuple[str, ...] = ("sphere", "sphere_large", "torus")
+    """Prototypes tried on the first frame of a track (the paper's cold start tries them all);
+    other cold starts use ``fit.prototypes``."""
     retry_ratio: float = 2.0
     """A warm fit whose image loss exceeds the previous frame's by this factor is redone cold,
     and the better of the two kept."""

@@ -111,6 +111,11 @@ def load_result(path: Path) -> FrameResult:
         raise SfbError(f"cannot read the frame result {path}: {exc}") from None
 
 
+def saved_frames(folder: Path) -> set[int]:
+    """Indices of the frames whose results are saved in a run ``folder``."""
+    return {int(p.stem.removeprefix("frame_")) for p in (folder / "frames").glob("frame_*.pt")}
+
+
 def load_results(folder: Path) -> dict[int, FrameResult]:
     """Every frame result saved in a run ``folder``, by frame index."""
     results = (load_result(p) for p in sorted((folder / "frames").glob("frame_*.pt")))

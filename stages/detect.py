@@ -5,8 +5,8 @@ than its own size within one frame, so the pixels it covers now differ from the 
 neither the frame two before nor the frame two after, while a slow mover (an arm, a person) or
 a change of the scene covers much the same pixels then: pixels that differ in those frames too
 are dropped, and what is left is split into 8-connected blobs. A tracked object is looked for
-near where its motion predicts it, among blobs large enough for its predicted size; otherwise
-the largest blob wins.
+near where its motion predicts it, among blobs large enough for its predicted size, preferring
+large blobs near the prediction; otherwise the largest blob wins.
 """
 
 from __future__ import annotations
@@ -101,7 +101,9 @@ def detect(
             distance = float(np.hypot(*(centroids[label] - np.asarray(prediction.centre))))
             if distance > config.gate * max(prediction.diameter, 1.0) + max(w, h) / 2:
                 continue
-            score = -distance
+            # Nearness alone would pick a speck or a shred of a slow mover next to a poor
+            # prediction over the real streak a little further away; size counts too.
+            score = area / (1 + (distance / max(prediction.diameter, 1.0)) ** 2)
         if best is None or score > best[0]:
             best = (score, label)
     if best is None:

@@ -1,8 +1,8 @@
 """Stage 5, export: saved frame results -> tsr.mp4, trajectory.csv, meshes/, recording.rrd.
 
 Everything here is rendered from the results saved in the run folder and the clip itself, so
-``sfb-video export`` can redo it at another TSR factor without fitting again. Every file is
-written atomically.
+``sfb-video export`` can redo it at another TSR factor without fitting again. The clip is
+streamed once and each result loaded only for its frame. Every file is written atomically.
 """
 
 from __future__ import annotations
@@ -11,20 +11,21 @@ import csv
 import io
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
 from sfb_video.config import Config
-from sfb_video.export import write_glb, write_obj
+from sfb_video.export import motion_record, write_glb, write_obj
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import matrix_to_axis_angle
 from sfb_video.imageio import atomic_write_bytes
 from sfb_video.model.formation import exposure_times, subframes
 from sfb_video.recording import Recorder
-from sfb_video.results import FrameResult
+from sfb_video.results import FrameResult, load_result, result_path
 from sfb_video.video import VideoWriter
 from stages.background import FrameWithBackground
 from stages.detect import difference_mask
@@ -123,45 +124,70 @@ def write_csv(path: Path, rows: list[dict[str, float | int | str]]) -> None:
     atomic_write_bytes(path, buffer.getvalue().encode())
 
 
-def write_meshes(folder: Path, results: dict[int, FrameResult]) -> int | None:
-    """``meshes/frame_XXXX.glb`` per fitted frame and ``meshes/best/`` (OBJ+PNG) of the frame with
-    the lowest image loss; returns that frame's index (None without fits)."""
-    for index, result in results.items():
-        write_glb(result.state, folder / "meshes" / f"frame_{index:05d}.glb")
-    if not results:
-        return None
-    best = min(results.values(), key=lambda r: r.losses["image"])
-    write_obj(best.state, folder / "meshes" / "best", name="mesh")
-    return best.index
+@dataclass
+class Exported:
+    """What streaming the clip through the exports gathered.
+
+    Attributes:
+        video_frames: frames written to ``tsr.mp4``.
+        rows: trajectory rows (:func:`trajectory_rows`) of every fitted frame.
+        fits: per fitted frame, what ``summary.json`` reports of it.
+        best: the fitted frame with the lowest image loss, or None.
+    """
+
+    video_frames: int = 0
+    rows: list[dict[str, float | int | str]] = field(default_factory=list)
+    fits: dict[int, dict[str, Any]] = field(default_factory=dict)
+    best: int | None = None
 
 
-def export_video_and_recording(
+def _fit_record(result: FrameResult, speed: float, diameter: float | None) -> dict[str, Any]:
+    record: dict[str, Any] = {
+        "start": result.start,
+        "prototype": result.prototype,
+        "losses": result.losses,
+        "iterations": len(result.curve),
+        "seconds": result.seconds,
+        "masks": "difference",
+        "speed_sizes_per_s": speed,
+        "motion": motion_record(result.state.motion),
+    }
+    if diameter is not None:
+        record["speed_km_per_h"] = speed * diameter * 3.6
+    return record
+
+
+def export_frames(
     folder: Path,
     frames: Iterator[FrameWithBackground],
-    results: dict[int, FrameResult],
     detections: dict[int, tuple[int, int, int, int] | None],
     camera: PinholeCamera,
     fps: float,
     n: int,
     config: Config,
     name: str,
-) -> int:
-    """Stream the clip once: write ``tsr.mp4`` (N sub-frames per fitted frame, the frame N times
-    otherwise) and ``recording.rrd``. Returns the number of frames in the video."""
+    diameter: float | None,
+) -> Exported:
+    """Stream the clip once and write ``tsr.mp4`` (N sub-frames per fitted frame, the frame N
+    times otherwise), ``recording.rrd`` and ``meshes/frame_XXXXX.glb``, loading each frame's
+    saved result only while it is needed, so memory does not grow with the clip."""
+    done = Exported()
     trajectory: list[np.ndarray] = []
+    best_loss = math.inf
     with (
         VideoWriter(folder / "tsr.mp4", fps * n, camera.width, camera.height) as video,
         Recorder(folder / "recording.rrd", camera, name) as recorder,
     ):
         for frame in frames:
             recorder.log_frame(frame.index, frame.image, frame.background)
-            result = results.get(frame.index)
             mask = difference_mask(frame.image, frame.background, config.detect)
             recorder.log_detection(frame.index, detections.get(frame.index), mask)
-            if result is None:
+            path = result_path(folder, frame.index)
+            if not path.is_file():
                 for _ in range(n):
                     video.write(frame.image)
                 continue
+            result = load_result(path)
             rendered = render_frame(frame, result, camera, n, config)
             for sub in rendered.subframes:
                 video.write(sub)
@@ -170,4 +196,13 @@ def export_video_and_recording(
             )
             trajectory.append(result.state.motion.at(exposure_times(n))[1].numpy())
             recorder.log_trajectory(np.concatenate(trajectory))
-        return video.frames_written
+            write_glb(result.state, folder / "meshes" / f"frame_{frame.index:05d}.glb")
+            rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
+            done.rows += rows
+            done.fits[frame.index] = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)
+            if result.losses["image"] < best_loss:
+                best_loss, done.best = result.losses["image"], frame.index
+        done.video_frames = video.frames_written
+    if done.best is not None:
+        write_obj(load_result(result_path(folder, done.best)).state, folder / "meshes" / "best", name="mesh")
+    return done

@@ -9,6 +9,8 @@ start.
 
 from __future__ import annotations
 
+import dataclasses
+
 import torch
 
 from sfb_video.config import Config
@@ -66,7 +68,9 @@ def fit_detection(
     if previous is not None:
         motion = continue_motion(previous.state.motion, frame.index - previous.index, config.video.exposure_fraction)
         warm = WarmStart(previous.prototype, previous.state.vertices, previous.state.texture, motion.to(device))
-    fit = fit_frame(crop, config.fit, config.render, warm=warm)
+    # A track's first frame decides the shape the whole track refines: it tries every prototype.
+    first = dataclasses.replace(config.fit, prototypes=config.video.track_prototypes)
+    fit = fit_frame(crop, config.fit if warm is not None else first, config.render, warm=warm)
     seconds = fit.seconds
     if warm is not None and fit.losses["image"] > config.video.retry_ratio * previous.losses["image"]:
         # The track's shape or prediction no longer explains this frame (a bounce, a turn, a

@@ -23,14 +23,14 @@ from tqdm import tqdm
 
 from sfb_video.checks import SfbError
 from sfb_video.config import Config, config_to_dict, save_config
-from sfb_video.export import motion_record, write_json
+from sfb_video.export import write_json
 from sfb_video.fitter import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.results import FrameResult, load_results, save_result
+from sfb_video.results import FrameResult, load_result, result_path, save_result, saved_frames
 from sfb_video.video import VideoInfo
 from stages.background import FrameWithBackground, with_backgrounds
 from stages.detect import Detection, detect, difference_mask
-from stages.export import export_video_and_recording, trajectory_rows, write_csv, write_meshes
+from stages.export import Exported, export_frames, write_csv
 from stages.fit import continue_motion, fit_detection, join, predict
 from stages.read import probe
 
@@ -212,7 +212,7 @@ def track_and_fit(
     Returns:
         the status of every frame read.
     """
-    saved = load_results(options.out)
+    saved = saved_frames(options.out)
     statuses: list[FrameStatus] = []
     previous: FrameResult | None = None  # the last fitted frame of the current track
     track_length = 0
@@ -229,7 +229,8 @@ def track_and_fit(
         if detection is None:
             status, result = FrameStatus(frame.index, "no_object"), None
         else:
-            result = saved.get(frame.index)
+            loaded = load_result(result_path(options.out, frame.index)) if frame.index in saved else None
+            result = loaded
             try:
                 if result is None:
                     start = previous if config.video.warm_start else None
@@ -242,7 +243,7 @@ def track_and_fit(
                 before, result = join(previous, result, camera, config.video.exposure_fraction, track_length == 1)
                 if before is not previous:
                     save_result(options.out, before)
-            if result is not saved.get(frame.index):
+            if result is not loaded:
                 save_result(options.out, result)
             previous, track_length = result, track_length + 1
         else:
@@ -284,59 +285,25 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     camera = clip_camera(info, config, record["focal_px"])
     frames = None if record["frames"] is None else range(*record["frames"])
     background = None if record["background"] is None else Path(record["background"])
-    results = load_results(folder)
-    diameter = record["object_diameter"]
     stream = with_backgrounds(video, config.video, info.frame_count, frames, background)
     boxes = {s.index: s.box for s in statuses}
-    written = export_video_and_recording(folder, stream, results, boxes, camera, info.fps, tsr, config, video.stem)
-    rows = [
-        row
-        for index in sorted(results)
-        for row in trajectory_rows(results[index], camera, tsr, info.fps, config.video.exposure_fraction, diameter)
-    ]
-    write_csv(folder / "trajectory.csv", rows)
-    best = write_meshes(folder, results)
-    summary = _summary(record, info, statuses, results, best, tsr, written, config, device_note)
+    diameter = record["object_diameter"]
+    done = export_frames(folder, stream, boxes, camera, info.fps, tsr, config, video.stem, diameter)
+    write_csv(folder / "trajectory.csv", done.rows)
+    summary = _summary(record, info, statuses, done, tsr, device_note)
     write_json(folder / SUMMARY_FILE, summary)
     return summary
 
 
 def _summary(
-    record: dict,
-    info: VideoInfo,
-    statuses: list[FrameStatus],
-    results: dict[int, FrameResult],
-    best: int | None,
-    tsr: int,
-    written: int,
-    config: Config,
-    device_note: str,
+    record: dict, info: VideoInfo, statuses: list[FrameStatus], done: Exported, tsr: int, device_note: str
 ) -> dict:
-    exposure_s = config.video.exposure_fraction / info.fps
-    frames = []
-    for s in statuses:
-        row: dict = dataclasses.asdict(s)
-        r = results.get(s.index)
-        if r is not None:
-            speed = float(r.state.motion.dx.norm()) / exposure_s
-            row.update(
-                start=r.start,
-                prototype=r.prototype,
-                losses=r.losses,
-                iterations=len(r.curve),
-                seconds=r.seconds,
-                masks="difference",
-                speed_sizes_per_s=speed,
-                motion=motion_record(r.state.motion),
-            )
-            if record["object_diameter"] is not None:
-                row["speed_km_per_h"] = speed * record["object_diameter"] * 3.6
-        frames.append(row)
-    fitted = [results[s.index] for s in statuses if s.index in results]
+    frames = [dataclasses.asdict(s) | done.fits.get(s.index, {}) for s in statuses]
+    fits = list(done.fits.values())
 
-    def mean_seconds(start: str) -> float | None:
-        times = [r.seconds for r in fitted if r.start == start]
-        return sum(times) / len(times) if times else None
+    def mean(key: str, start: str | None = None) -> float | None:
+        values = [f[key] for f in fits if start in (None, f["start"])]
+        return sum(values) / len(values) if values else None
 
     return {
         "video": record["video"],
@@ -344,16 +311,16 @@ def _summary(
         "height": info.height,
         "fps": info.fps,
         "frames_read": len(statuses),
-        "frames_fitted": len(fitted),
+        "frames_fitted": len(fits),
         "frames_without_object": sum(s.status == "no_object" for s in statuses),
-        "cold_starts": sum(r.start == "cold" for r in fitted),
-        "warm_starts": sum(r.start == "warm" for r in fitted),
-        "mean_seconds_cold": mean_seconds("cold"),
-        "mean_seconds_warm": mean_seconds("warm"),
-        "mean_image_loss": sum(r.losses["image"] for r in fitted) / len(fitted) if fitted else None,
-        "best_frame": best,
+        "cold_starts": sum(f["start"] == "cold" for f in fits),
+        "warm_starts": sum(f["start"] == "warm" for f in fits),
+        "mean_seconds_cold": mean("seconds", "cold"),
+        "mean_seconds_warm": mean("seconds", "warm"),
+        "mean_image_loss": None if not fits else sum(f["losses"]["image"] for f in fits) / len(fits),
+        "best_frame": done.best,
         "tsr": tsr,
-        "tsr_video_frames": written,
+        "tsr_video_frames": done.video_frames,
         "object_diameter_m": record["object_diameter"],
         "device": device_note,
         "outputs": ["tsr.mp4", "trajectory.csv", "meshes/", "recording.rrd", "summary.json"],
@@ -396,7 +363,7 @@ def _process(
     resumed: bool,
 ) -> dict:
     save_config(options.out / "config.yaml", config)
-    saved = len(load_results(options.out)) if resumed else 0
+    saved = len(saved_frames(options.out)) if resumed else 0
     if resumed and not quiet:
         print(f"resuming the unfinished run in {options.out} ({saved} frames already fitted)")
     total = len(options.frames) if options.frames is not None else info.frame_count
