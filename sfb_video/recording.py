@@ -54,7 +54,6 @@ import os
 import tempfile
 import uuid
 from pathlib import Path
-from types import TracebackType
 
 import numpy as np
 import rerun as rr
@@ -63,7 +62,7 @@ import torch
 from sfb_video.checks import SfbError, check_shape
 from sfb_video.export import to_trimesh
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.imageio import FILE_MODE, to_uint8
+from sfb_video.imageio import FILE_MODE, AtomicOutput, to_uint8
 from sfb_video.model.formation import exposure_times
 from sfb_video.model.scene import ObjectState
 
@@ -83,7 +82,7 @@ TRAJECTORY_POINT_RADIUS = 0.05
 Box = tuple[int, int, int, int]
 
 
-class Recorder:
+class Recorder(AtomicOutput):
     """Writes the rerun recording of one clip; see the module docstring for what goes where.
 
     Use it as a context manager: it closes (renames the file into place) on success and aborts
@@ -263,17 +262,6 @@ class Recorder:
             self._rec.disconnect()
         finally:
             tmp.unlink(missing_ok=True)
-
-    def __enter__(self) -> Recorder:
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
     # ----------------------------------------------------------------------------------------------
     # Internals

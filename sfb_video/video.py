@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from sfb_video.checks import SfbError, check_shape
-from sfb_video.imageio import to_uint8
+from sfb_video.imageio import AtomicOutput, to_uint8
 
 # The frame rate reported when FFmpeg gives none (average, guessed and base rates all unset).
 DEFAULT_FPS = 30.0
@@ -153,7 +153,7 @@ class VideoReader:
         self.close()
 
 
-class VideoWriter:
+class VideoWriter(AtomicOutput):
     """Encode frames to an H.264 (libx264, yuv420p) ``.mp4``, atomically.
 
     Frames go to a hidden temporary file in the same folder (``.<name>.<random>.tmp.mp4``) that
@@ -259,14 +259,3 @@ class VideoWriter:
             with contextlib.suppress(av.FFmpegError, OSError):
                 container.close()
         self._tmp.unlink(missing_ok=True)
-
-    def __enter__(self) -> VideoWriter:
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()

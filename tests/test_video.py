@@ -13,6 +13,7 @@ import torch
 import sfb_video.video as video
 from sfb_video.checks import SfbError
 from sfb_video.video import VideoReader, VideoWriter
+from tests.media import write_keyframeless
 
 SQUARE = 30  # side of the moving square, pixels
 COLOUR = torch.tensor([0.9, 0.6, 0.1])
@@ -155,18 +156,7 @@ def test_reader_errors_name_the_file(tmp_path: Path) -> None:
 
 
 def test_stream_without_decodable_frames_is_an_error(tmp_path: Path) -> None:
-    # An H.264 stream missing its keyframe: the container and stream are valid, but the decoder
-    # outputs nothing (it waits for a keyframe) and reports no error either.
-    path = tmp_path / "no_keyframe.mkv"
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("libx264", rate=25)
-        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
-        packets = []
-        for i in range(5):
-            packets += stream.encode(av.VideoFrame.from_ndarray(np.full((48, 64, 3), 40 * i, np.uint8), "rgb24"))
-        packets += stream.encode(None)
-        assert packets[0].is_keyframe
-        container.mux(packets[1:])
+    path = write_keyframeless(tmp_path / "no_keyframe.mkv")
     with VideoReader(path) as reader, pytest.raises(SfbError, match="has no frames") as info:
         list(reader)
     assert str(path) in str(info.value)

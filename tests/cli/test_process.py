@@ -13,6 +13,7 @@ from sfb_video.cli import main
 from sfb_video.config import load_config
 from sfb_video.demo import demo_clip, demo_config
 from sfb_video.video import VideoWriter
+from tests.media import write_keyframeless
 
 FAST = ["--config", "fast", "--device", "cpu", "--quiet"]
 
@@ -54,16 +55,7 @@ def test_not_a_video(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None
 
 
 def test_zero_frames(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    # A valid container whose H.264 stream lacks its keyframe: nothing can be decoded.
-    path = tmp_path / "empty.mkv"
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("libx264", rate=25)
-        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
-        packets = []
-        for i in range(5):
-            packets += stream.encode(av.VideoFrame.from_ndarray(np.full((48, 64, 3), 40 * i, np.uint8), "rgb24"))
-        packets += stream.encode(None)
-        container.mux(packets[1:])
+    path = write_keyframeless(tmp_path / "empty.mkv")
     assert main(["process", str(path), "--out", str(tmp_path / "o"), *FAST]) == 2
     _one_line_error(capsys, "no frames")
     assert not (tmp_path / "o").exists()
