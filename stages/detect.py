@@ -46,13 +46,17 @@ class Prediction:
     diameter: float
 
 
+def _opened(mask: np.ndarray, config: DetectConfig) -> torch.Tensor:
+    """(H, W) bool mask opened by an ``open_px`` square, which removes specks of noise."""
+    out = mask.astype(np.uint8)
+    if config.open_px > 1:
+        out = cv2.morphologyEx(out, cv2.MORPH_OPEN, np.ones((config.open_px, config.open_px), np.uint8))
+    return torch.from_numpy(out.astype(bool))
+
+
 def difference_mask(image: torch.Tensor, background: torch.Tensor, config: DetectConfig) -> torch.Tensor:
     """(H, W) bool: ||I - B||_2 > threshold over RGB, opened by an ``open_px`` square."""
-    diff = (image - background).norm(dim=0) > config.threshold
-    mask = diff.cpu().numpy().astype(np.uint8)
-    if config.open_px > 1:
-        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((config.open_px, config.open_px), np.uint8))
-    return torch.from_numpy(mask.astype(bool))
+    return _opened(((image - background).norm(dim=0) > config.threshold).cpu().numpy(), config)
 
 
 def moving_mask(mask: torch.Tensor, neighbours: list[torch.Tensor], config: DetectConfig) -> torch.Tensor:
@@ -63,10 +67,7 @@ def moving_mask(mask: torch.Tensor, neighbours: list[torch.Tensor], config: Dete
     keep = mask.cpu().numpy().astype(bool)
     for n in neighbours:
         keep &= ~cv2.dilate(n.cpu().numpy().astype(np.uint8), kernel).astype(bool)
-    out = keep.astype(np.uint8)
-    if config.open_px > 1:
-        out = cv2.morphologyEx(out, cv2.MORPH_OPEN, np.ones((config.open_px, config.open_px), np.uint8))
-    return torch.from_numpy(out.astype(bool))
+    return _opened(keep, config)
 
 
 def detect(
@@ -85,8 +86,19 @@ def detect(
         prediction: where a tracked object should be, if one is tracked.
         config: thresholds.
     """
-    moving = moving_mask(mask, neighbours, config).numpy().astype(np.uint8)
-    count, labels, stats, centroids = cv2.connectedComponentsWithStats(moving, connectivity=8)
+    return choose_blob(index, moving_mask(mask, neighbours, config), prediction, config)
+
+
+def choose_blob(
+    index: int, moving: torch.Tensor, prediction: Prediction | None, config: DetectConfig
+) -> Detection | None:
+    """The FMO among the blobs of a frame's ``moving`` mask (:func:`moving_mask`), or None.
+
+    Split from :func:`detect` so that a tracker trying several predictions on one frame runs
+    the slow-mover test once.
+    """
+    labelled = moving.cpu().numpy().astype(np.uint8)
+    count, labels, stats, centroids = cv2.connectedComponentsWithStats(labelled, connectivity=8)
     min_area = config.min_area_px
     if prediction is not None:
         min_area = max(min_area, config.min_fill * math.pi / 4 * prediction.diameter**2)

@@ -23,7 +23,7 @@ from sfb_video.export import motion_record, write_glb, write_obj
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import matrix_to_axis_angle
 from sfb_video.imageio import atomic_write_bytes
-from sfb_video.model.formation import exposure_times, subframes
+from sfb_video.model.formation import exposure_times
 from sfb_video.recording import Recorder
 from sfb_video.results import FrameResult, load_result, result_path
 from sfb_video.video import VideoWriter
@@ -58,10 +58,7 @@ def render_frame(
     x, y, w, h = result.crop_box
     box_camera = camera.crop(x, y, w, h, w, h)
     patch_bg = frame.background[:, y : y + h, x : x + w]
-    taus = exposure_times(n * STEPS_PER_SUBFRAME)
-    with torch.no_grad():
-        out = result.state.render(box_camera, taus, config.render)
-        patches = subframes(out.rgb, out.alpha, patch_bg, n)
+    patches = result.state.render_subframes(box_camera, patch_bg, n, STEPS_PER_SUBFRAME, config.render)
     frames = frame.image.expand(n, -1, -1, -1).clone()
     frames[:, :, y : y + h, x : x + w] = patches
     reconstruction = frame.image.clone()

@@ -29,7 +29,7 @@ from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.results import FrameResult, load_result, result_path, save_result, saved_frames
 from sfb_video.video import VideoInfo
 from stages.background import FrameWithBackground, with_backgrounds
-from stages.detect import Detection, detect, difference_mask
+from stages.detect import Detection, choose_blob, difference_mask, moving_mask
 from stages.export import Exported, export_frames, write_csv
 from stages.fit import continue_motion, fit_detection, join, predict
 from stages.read import probe
@@ -185,10 +185,11 @@ def _follow(
         predicted it (None when there was no track or the object was found away from it).
     """
     options = [] if previous is None else [previous, previous.reversed()] if may_flip else [previous]
+    moving = moving_mask(mask, neighbours, config.detect)
     best: tuple[float, Detection, FrameResult] | None = None
     for option in options:
         prediction = predict(continue_motion(option.state.motion, 1, config.video.exposure_fraction), camera)
-        found = detect(index, mask, neighbours, prediction, config.detect)
+        found = choose_blob(index, moving, prediction, config.detect)
         if found is not None:
             x, y, w, h = found.box
             distance = math.hypot(x + w / 2 - prediction.centre[0], y + h / 2 - prediction.centre[1])
@@ -196,7 +197,7 @@ def _follow(
                 best = (distance, found, option)
     if best is not None:
         return best[1], best[2]
-    return detect(index, mask, neighbours, None, config.detect), None
+    return choose_blob(index, moving, None, config.detect), None
 
 
 def track_and_fit(
