@@ -15,7 +15,7 @@ import argparse
 import statistics
 
 from sfb_video.config import Config, load_config
-from sfb_video.evaluation import FrameScore, fit_synthetic_frame
+from sfb_video.evaluation.synthetic import FrameScore, fit_synthetic_frame
 from sfb_video.synth import ClipSpec, generate_clip
 
 SHAPES = ("ball", "box", "pen", "ring", "key")

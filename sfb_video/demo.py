@@ -13,7 +13,7 @@ import statistics
 from pathlib import Path
 
 from sfb_video.config import Config
-from sfb_video.evaluation import FrameScore, score_state
+from sfb_video.evaluation.synthetic import FrameScore, score_state
 from sfb_video.results import load_results
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip
 from sfb_video.video import VideoWriter

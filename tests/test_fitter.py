@@ -16,7 +16,7 @@ import torch
 from sfb_video.checks import SfbError
 from sfb_video.config import load_config
 from sfb_video.crop import make_crop
-from sfb_video.evaluation import FrameScore, fit_synthetic_frame, score_fit, synthetic_crop
+from sfb_video.evaluation.synthetic import FrameScore, fit_synthetic_frame, score_fit, synthetic_crop
 from sfb_video.fitter import NoObjectError, WarmStart, fit_frame
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion

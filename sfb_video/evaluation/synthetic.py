@@ -3,7 +3,8 @@
 Used by the fitter's tests and benchmark. Image measures are taken, as the FMO benchmark does,
 on the tight box of the object's exposure, with sub-frames rendered by the full-frame camera
 restricted to that box; 3D measures compare positions at the sub-frames' mid-times and the
-rotation made during the exposure (the mesh's own orientation is arbitrary for a prototype).
+rotation made during the exposure (the mesh's own orientation is arbitrary for a prototype),
+and the meshes are compared posed at the start of the exposure.
 """
 
 from __future__ import annotations
@@ -19,10 +20,14 @@ from sfb_video import metrics
 from sfb_video.config import Config
 from sfb_video.crop import Crop, make_crop
 from sfb_video.fitter import FitResult, fit_frame
+from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import axis_angle_to_matrix
 from sfb_video.model.formation import exposure_times
+from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.synth import SyntheticClip
+from sfb_video.synth.shapes import TexturedMesh
+from sfb_video.synth.trajectory import FrameMotion
 
 
 @dataclass(frozen=True)
@@ -33,6 +38,7 @@ class FrameScore:
         tiou, psnr, ssim: benchmark measures on the tight box.
         translation_err: mean position error at the sub-frame mid-times, in object sizes.
         rotation_err_deg: angle between the estimated and true rotation during the exposure.
+        mesh_err: mean bidirectional mesh distance, in unit-cube object sizes (paper, Sec. 5).
         image_loss: the fit's L_I.
         seconds: wall time of the fit.
         flipped: whether the estimate was reversed in time to match the truth.
@@ -43,6 +49,7 @@ class FrameScore:
     ssim: float
     translation_err: float
     rotation_err_deg: float
+    mesh_err: float
     image_loss: float
     seconds: float
     flipped: bool
@@ -68,14 +75,40 @@ def crop_masks(clip: SyntheticClip, index: int, crop: Crop) -> torch.Tensor:
     return F.interpolate(masks[:, None], size=size, mode="bilinear", antialias=True, align_corners=False)[:, 0]
 
 
+def motion_errors(motion: Motion, truth: FrameMotion, camera: PinholeCamera, n: int) -> dict[str, float | np.ndarray]:
+    """3D errors of ``motion`` against the truth at ``n`` sub-frame mid-times.
+
+    Returns:
+        translation_err (object sizes), rotation_err_deg, and centres: the (n, 2) projected
+        estimated positions in pixels.
+    """
+    taus = exposure_times(n)
+    _, positions = motion.at(taus)
+    true_positions = truth.x0[None] + taus.numpy()[:, None].astype(np.float64) * truth.dx[None]
+    est_delta = axis_angle_to_matrix(motion.omega.double()).numpy()
+    true_delta = axis_angle_to_matrix(torch.from_numpy(truth.omega)).numpy()
+    return {
+        "translation_err": metrics.translation_error(positions.numpy(), true_positions),
+        "rotation_err_deg": metrics.rotation_error_deg(est_delta, true_delta),
+        "centres": camera.project(positions)[0].numpy(),
+    }
+
+
+def shape_error(state: ObjectState, motion: Motion, truth: FrameMotion, mesh: TexturedMesh) -> float:
+    """The paper's mesh distance between ``state``'s mesh and the truth, both posed at the start."""
+    vertices = (state.vertices.double() @ motion.rot0.double().T).numpy()
+    true_vertices = mesh.vertices.double().numpy() @ truth.rotation.T
+    return metrics.mesh_distance(vertices, state.topology.faces.numpy(), true_vertices, mesh.topology.faces.numpy())
+
+
 def score_state(
     state: ObjectState, clip: SyntheticClip, index: int, config: Config, may_flip: bool = True
 ) -> FrameScore:
     """Compare a recovered object of frame ``index`` with its ground truth.
 
     Args:
-        may_flip: reverse the estimate in time when that fits the truth better, as the benchmark
-            does for one frame; a video, whose direction the pipeline resolves, is scored without.
+        may_flip: reverse the estimate in time where the benchmark would, for one frame; a
+            video, whose direction the pipeline resolves, is scored without.
     """
     truth = clip.truth[index]
     n = clip.spec.num_subframes
@@ -85,22 +118,18 @@ def score_state(
     estimate = state.render_subframes(box_camera, background, n, 4, config.render)
     estimate = estimate.permute(0, 2, 3, 1).numpy()
     expected = truth.subframes[:, y : y + h, x : x + w].astype(np.float64) / 255
-    flipped = may_flip and metrics.best_direction(estimate, expected)
+    flipped = may_flip and metrics.should_flip(estimate, expected)
     motion = state.motion.reversed() if flipped else state.motion
     if flipped:
         estimate = estimate[::-1]
-    taus = exposure_times(n)
-    _, positions = motion.at(taus)
-    centres, _ = clip.camera.project(positions)
-    true_positions = truth.motion.x0[None] + taus.numpy()[:, None].astype(np.float64) * truth.motion.dx[None]
-    est_delta = axis_angle_to_matrix(motion.omega.double()).numpy()
-    true_delta = axis_angle_to_matrix(torch.from_numpy(truth.motion.omega)).numpy()
+    errors = motion_errors(motion, truth.motion, clip.camera, n)
     return FrameScore(
-        tiou=metrics.tiou(centres.numpy(), truth.centres, truth.radius_px),
+        tiou=metrics.tiou(errors["centres"], truth.centres, truth.radius_px, may_flip=may_flip),
         psnr=metrics.psnr(estimate, expected),
         ssim=metrics.ssim(estimate, expected),
-        translation_err=metrics.translation_error(positions.numpy(), true_positions),
-        rotation_err_deg=metrics.rotation_error_deg(est_delta, true_delta),
+        translation_err=float(errors["translation_err"]),
+        rotation_err_deg=float(errors["rotation_err_deg"]),
+        mesh_err=shape_error(state, motion, truth.motion, clip.scene.mesh),
         image_loss=float("nan"),
         seconds=float("nan"),
         flipped=flipped,
