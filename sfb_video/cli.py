@@ -221,6 +221,69 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _eval_sequences(args: argparse.Namespace) -> list:
+    from sfb_video.evaluation.datasets import list_sequences
+    from sfb_video.evaluation.synthetic_set import ensure_set, list_synthetic
+
+    root = Path(args.root)
+    if args.dataset == "synthetic":
+        ensure_set(root, quiet=args.quiet)
+        sequences = list_synthetic(root)
+    else:
+        sequences = list_sequences(root, args.dataset)
+    if args.sequence:
+        known = {s.name for s in sequences}
+        unknown = [name for name in args.sequence if name not in known]
+        if unknown:
+            raise SfbError(f"no sequence {unknown[0]!r} in {root}; there are: {', '.join(sorted(known))}")
+        sequences = [s for s in sequences if s.name in args.sequence]
+    return sequences
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from sfb_video.evaluation.runner import MODES, run_sequence
+    from sfb_video.evaluation.tables import markdown, summarise, write_tables
+
+    config = load_config(args.config, args.set)
+    device = resolve_device(args.device)
+    if args.max_frames is not None and args.max_frames < 1:
+        raise SfbError(f"--max-frames must be at least 1, got {args.max_frames}")
+    sequences = _eval_sequences(args)
+    modes = MODES if args.mode == "both" else (args.mode,)
+    out = Path(args.out or f"runs/eval-{args.dataset}")
+    _fresh_folder(out, args.overwrite)
+    save_config(out / "config.yaml", config)
+    runs = [(s, m) for s in sequences for m in modes]
+    frames = sum(min(s.num_frames, args.max_frames or s.num_frames) for s, _ in runs)
+    rows = []
+    # disable=None: no bar when stderr is not a terminal (logs, CI).
+    with tqdm(total=frames, desc="eval", unit="frame", disable=True if args.quiet else None) as bar:
+        for done, (sequence, mode) in enumerate(runs, start=1):
+            bar.set_postfix(sequence=sequence.name, mode=mode)
+            rows += run_sequence(sequence, config, mode, device, args.max_frames, on_frame=lambda _: bar.update(1))
+            # Tables after every sequence: an interrupted evaluation keeps what it finished, marked.
+            note = "" if done == len(runs) else f"Incomplete: {done} of {len(runs)} sequence runs finished.\n\n"
+            write_tables(out, rows, note)
+    if not args.quiet:
+        print(markdown(summarise(rows)))
+        print(f"wrote {out}/: table.md, sequences.csv, frames.csv, config.yaml")
+    return 0
+
+
+def _fresh_folder(path: Path, overwrite: bool) -> None:
+    """Create ``path`` for outputs written file by file; an existing one only with ``overwrite``."""
+    if path.exists() and any(path.iterdir()) and not overwrite:
+        raise SfbError(f"output folder {path} already exists; pass --overwrite to replace it")
+    try:
+        if path.exists():
+            shutil.rmtree(path)
+        path.mkdir(parents=True)
+    except OSError as exc:
+        raise SfbError(f"cannot write to output folder {path}: {exc.strerror}") from None
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     import subprocess
 
@@ -274,6 +337,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     export.add_argument("--views", type=int, default=36, help="turntable views per frame")
     export.set_defaults(func=cmd_export)
+    evaluate = sub.add_parser("eval", parents=[common], help="score the method on a benchmark dataset")
+    evaluate.add_argument("--dataset", required=True, choices=["tbd", "tbd3d", "falling", "synthetic"])
+    evaluate.add_argument(
+        "--root", required=True, help="the dataset's folder (synthetic: generated there on first use)"
+    )
+    evaluate.add_argument("--out", help="output folder (default: runs/eval-<dataset>)")
+    evaluate.add_argument("--mode", choices=["per-frame", "video", "both"], default="both")
+    evaluate.add_argument("--sequence", action="append", help="only this sequence (repeatable)")
+    evaluate.add_argument("--max-frames", type=int, help="only the first N frames of each sequence")
+    evaluate.set_defaults(func=cmd_eval)
     replay = sub.add_parser("replay", help="open a run's recording in the rerun viewer")
     replay.add_argument("run", help="a run folder or a .rrd file")
     replay.set_defaults(func=cmd_replay)
@@ -290,6 +363,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         if args.command == "process":
             note = "frames finished so far are kept; run the same command again to resume"
+        elif args.command == "eval":
+            note = "the tables hold the sequences finished so far, marked incomplete"
         else:
             note = "no partial output was left"
         print(f"sfb-video: interrupted; {note}", file=sys.stderr)

@@ -1,0 +1,85 @@
+"""`sfb-video eval` end to end on a small dataset in the benchmark's layout, and its bad inputs."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import pytest
+
+from sfb_video.cli import main
+from tests.evaluation.fmo_fixture import write_fixture
+
+QUICK = ["--config", "fast", "--set", "fit.iterations=60", "--set", "fit.warm_iterations=30", "--device", "cpu"]
+
+
+@pytest.fixture(scope="module")
+def evaluated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    root = tmp_path_factory.mktemp("tbd3d")
+    write_fixture(root, "tbd3d")
+    out = tmp_path_factory.mktemp("eval") / "run"
+    code = main(["eval", "--dataset", "tbd3d", "--root", str(root), "--out", str(out), "--max-frames", "2", *QUICK])
+    assert code == 0
+    return root, out
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with path.open() as f:
+        return list(csv.DictReader(f))
+
+
+def test_every_frame_is_scored_in_both_modes(evaluated: tuple[Path, Path]) -> None:
+    _, out = evaluated
+    rows = _rows(out / "frames.csv")
+    sequences = sorted({r["sequence"] for r in rows})
+    assert len(sequences) == 2
+    for name in sequences:
+        per_frame = [r for r in rows if r["sequence"] == name and r["mode"] == "per-frame"]
+        video = [r for r in rows if r["sequence"] == name and r["mode"] == "video"]
+        assert [r["status"] for r in per_frame] == ["cold", "cold"]
+        assert video[0]["status"] == "cold" and video[1]["status"] in ("warm", "cold")
+    for r in rows:
+        assert 0.0 <= float(r["tiou"]) <= 1.0 and 0.0 <= float(r["ssim"]) <= 1.0
+        assert float(r["seconds"]) > 0
+
+
+def test_the_disc_is_found_where_the_truth_puts_it(evaluated: tuple[Path, Path]) -> None:
+    # The fixture's disc moves about one diameter per exposure; a fit that lost it scores ~0.
+    _, out = evaluated
+    totals = [r for r in _rows(out / "sequences.csv") if r["sequence"] == "total"]
+    assert [r["mode"] for r in totals] == ["per-frame", "video"]
+    for r in totals:
+        assert float(r["tiou"]) > 0.5, r
+        assert float(r["psnr"]) > 20.0, r
+
+
+def test_the_table_is_complete_and_the_config_kept(evaluated: tuple[Path, Path]) -> None:
+    _, out = evaluated
+    table = (out / "table.md").read_text()
+    assert not table.startswith("Incomplete") and "**total**" in table
+    assert (out / "config.yaml").is_file()
+
+
+def test_an_existing_output_is_not_overwritten(evaluated: tuple[Path, Path], capsys: pytest.CaptureFixture) -> None:
+    root, out = evaluated
+    assert main(["eval", "--dataset", "tbd3d", "--root", str(root), "--out", str(out), *QUICK]) == 2
+    assert "already exists" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--dataset", "tbd", "--root", "/nonexistent/fmo"], "/nonexistent/fmo"),
+        (["--dataset", "tbd3d", "--sequence", "no_such_seq"], "no sequence 'no_such_seq'"),
+        (["--dataset", "tbd3d", "--max-frames", "0"], "--max-frames"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(
+    evaluated: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture, extra: list[str], message: str
+) -> None:
+    root, _ = evaluated
+    argv = ["eval", "--root", str(root), "--out", str(tmp_path / "out"), *QUICK, *extra]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "out").exists()
