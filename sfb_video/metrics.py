@@ -74,6 +74,32 @@ def should_flip(estimate: np.ndarray, truth: np.ndarray) -> bool:
     return bool(np.mean((first - truth[0]) ** 2) > np.mean((first - truth[-1]) ** 2))
 
 
+def benchmark_scores(
+    estimate: np.ndarray,
+    truth: np.ndarray,
+    centres: np.ndarray,
+    true_centres: np.ndarray,
+    radius: float,
+    may_flip: bool = True,
+) -> tuple[dict[str, float], bool]:
+    """TIoU, PSNR and SSIM of one frame by the benchmark's protocol, and whether it reversed the estimate.
+
+    Args:
+        estimate, truth: (N, h, w, 3) sub-frames on the tight box, in [0, 1].
+        centres, true_centres: (N, 2) sub-frame centres in pixels, in the estimate's own order.
+        may_flip: apply the benchmark's two flips; off for a video, whose direction is resolved.
+    """
+    flipped = may_flip and should_flip(estimate, truth)
+    if flipped:
+        estimate = estimate[::-1]
+    scores = {
+        "tiou": tiou(centres, true_centres, radius, may_flip=may_flip),
+        "psnr": psnr(estimate, truth),
+        "ssim": ssim(estimate, truth),
+    }
+    return scores, flipped
+
+
 def translation_error(positions: np.ndarray, truth: np.ndarray) -> float:
     """Mean distance between estimated and true (N, 3) positions, in object sizes."""
     return float(np.linalg.norm(positions - truth, axis=-1).mean())

@@ -108,19 +108,13 @@ def score_frame(
     """The benchmark's measures of one fitted frame, and 3D errors when ``clip`` holds the truth."""
     x, y, w, h = frame.box
     truth = frame.subframes[:, y : y + h, x : x + w]
-    flipped = metrics.should_flip(estimate, truth)
+    n = len(frame.centres)
+    centres = camera.project(result.state.motion.at(exposure_times(n))[1])[0].numpy()
+    scores, flipped = metrics.benchmark_scores(estimate, truth, centres, frame.centres, frame.radius)
     motion = result.state.motion.reversed() if flipped else result.state.motion
-    _, positions = motion.at(exposure_times(len(frame.centres)))
-    scores = {
-        "tiou": metrics.tiou(camera.project(positions)[0].numpy(), frame.centres, frame.radius),
-        "psnr": metrics.psnr(estimate[::-1] if flipped else estimate, truth),
-        "ssim": metrics.ssim(estimate[::-1] if flipped else estimate, truth),
-    }
     if clip is not None:
         true_motion = clip.truth[frame.index].motion
-        errors = motion_errors(motion, true_motion, camera, len(frame.centres))
-        scores["translation_err"] = float(errors["translation_err"])
-        scores["rotation_err_deg"] = float(errors["rotation_err_deg"])
+        scores |= motion_errors(motion, true_motion, n)
         scores["mesh_err"] = shape_error(result.state, motion, true_motion, clip.scene.mesh)
     return scores
 

@@ -20,7 +20,6 @@ from sfb_video import metrics
 from sfb_video.config import Config
 from sfb_video.crop import Crop, make_crop
 from sfb_video.fitter import FitResult, fit_frame
-from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import axis_angle_to_matrix
 from sfb_video.model.formation import exposure_times
 from sfb_video.model.motion import Motion
@@ -75,12 +74,11 @@ def crop_masks(clip: SyntheticClip, index: int, crop: Crop) -> torch.Tensor:
     return F.interpolate(masks[:, None], size=size, mode="bilinear", antialias=True, align_corners=False)[:, 0]
 
 
-def motion_errors(motion: Motion, truth: FrameMotion, camera: PinholeCamera, n: int) -> dict[str, float | np.ndarray]:
+def motion_errors(motion: Motion, truth: FrameMotion, n: int) -> dict[str, float]:
     """3D errors of ``motion`` against the truth at ``n`` sub-frame mid-times.
 
     Returns:
-        translation_err (object sizes), rotation_err_deg, and centres: the (n, 2) projected
-        estimated positions in pixels.
+        translation_err (object sizes) and rotation_err_deg.
     """
     taus = exposure_times(n)
     _, positions = motion.at(taus)
@@ -90,7 +88,6 @@ def motion_errors(motion: Motion, truth: FrameMotion, camera: PinholeCamera, n: 
     return {
         "translation_err": metrics.translation_error(positions.numpy(), true_positions),
         "rotation_err_deg": metrics.rotation_error_deg(est_delta, true_delta),
-        "centres": camera.project(positions)[0].numpy(),
     }
 
 
@@ -118,17 +115,13 @@ def score_state(
     estimate = state.render_subframes(box_camera, background, n, 4, config.render)
     estimate = estimate.permute(0, 2, 3, 1).numpy()
     expected = truth.subframes[:, y : y + h, x : x + w].astype(np.float64) / 255
-    flipped = may_flip and metrics.should_flip(estimate, expected)
+    centres = clip.camera.project(state.motion.at(exposure_times(n))[1])[0].numpy()
+    scores, flipped = metrics.benchmark_scores(estimate, expected, centres, truth.centres, truth.radius_px, may_flip)
     motion = state.motion.reversed() if flipped else state.motion
-    if flipped:
-        estimate = estimate[::-1]
-    errors = motion_errors(motion, truth.motion, clip.camera, n)
+    errors = motion_errors(motion, truth.motion, n)
     return FrameScore(
-        tiou=metrics.tiou(errors["centres"], truth.centres, truth.radius_px, may_flip=may_flip),
-        psnr=metrics.psnr(estimate, expected),
-        ssim=metrics.ssim(estimate, expected),
-        translation_err=float(errors["translation_err"]),
-        rotation_err_deg=float(errors["rotation_err_deg"]),
+        **scores,
+        **errors,
         mesh_err=shape_error(state, motion, truth.motion, clip.scene.mesh),
         image_loss=float("nan"),
         seconds=float("nan"),
