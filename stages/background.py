@@ -93,7 +93,13 @@ def with_backgrounds(
     if background is not None:
         return fixed_background(stream, read_image(background))
     if config.background == "running":
-        return running_median(stream, config.background_window)
+        if frames is None:
+            return running_median(stream, config.background_window)
+        # The frames around the range make its backgrounds, as in a run over the whole clip: a
+        # short range alone has too few frames for a median without the object.
+        window = config.background_window
+        wider = range(max(0, frames.start - window), max(frames.stop, frames.start + window + 1))
+        return (f for f in running_median(read_frames(path, wider), window) if f.index in frames)
     if config.background == "global":
         return fixed_background(stream, global_median(path, config.global_samples, frame_count))
     raise ConfigError(f"video.background must be 'running' or 'global', got {config.background!r}")

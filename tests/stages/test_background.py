@@ -1,12 +1,16 @@
-"""The background stage: running median, its start-of-clip rule, and a given image."""
+"""The background stage: running median, its start-of-clip rule, frame ranges, and a given image."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import pytest
 import torch
 
 from sfb_video.checks import SfbError
-from stages.background import fixed_background, running_median
+from sfb_video.config import VideoConfig
+from sfb_video.video import VideoWriter
+from stages.background import fixed_background, running_median, with_backgrounds
 from stages.read import Frame
 
 
@@ -50,3 +54,18 @@ def test_running_median_needs_two_frames() -> None:
 def test_fixed_background_must_match_the_frame_size() -> None:
     with pytest.raises(SfbError, match="but the frames are"):
         list(fixed_background(iter(_frames(2)), torch.zeros(3, 5, 5)))
+
+
+@pytest.mark.parametrize("frames", [range(0, 2), range(3, 5), range(7, 12)])
+def test_a_frame_range_gets_the_backgrounds_of_a_run_over_the_whole_clip(tmp_path: Path, frames: range) -> None:
+    path = tmp_path / "clip.mp4"
+    with VideoWriter(path, 30.0, 32, 24) as video:
+        for frame in _frames(10, 24, 32):
+            video.write(frame.image)
+    config = VideoConfig(background_window=3)
+    whole = {f.index: f for f in with_backgrounds(path, config, None)}
+    part = list(with_backgrounds(path, config, None, frames))
+    assert [f.index for f in part] == [i for i in frames if i < 10]
+    for f in part:
+        assert torch.equal(f.image, whole[f.index].image)
+        assert torch.equal(f.background, whole[f.index].background)
