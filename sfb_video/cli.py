@@ -14,12 +14,16 @@ import sys
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 
 from sfb_video import __version__
 from sfb_video.checks import SfbError
 from sfb_video.config import load_config, save_config
+
+if TYPE_CHECKING:
+    from stages.masks import MaskSource
 
 NOTHING_FOUND = 3
 """Exit status of a run that finished but found no moving object in any frame."""
@@ -85,13 +89,25 @@ def cmd_demo(args: argparse.Namespace) -> int:
         write_clip_video(clip, video)
     except OSError as exc:
         raise SfbError(f"cannot write the demo clip {video}: {exc}") from None
-    options = ProcessOptions(video=video, out=out, overwrite=args.overwrite)
+    options = ProcessOptions(
+        video=video, out=out, overwrite=args.overwrite, masks=args.masks, defmo_weights=_defmo_weights(args)
+    )
     summary = process_clip(options, config, device, quiet=args.quiet)
     if not args.quiet:
         _print_summary(out, summary)
         print("\naccuracy against the generated ground truth (TSR sub-frames, FMO benchmark measures):\n")
         print(score_table(score_run(out, clip, config)))
     return 0
+
+
+def _defmo_weights(args: argparse.Namespace) -> Path | None:
+    return None if args.defmo_weights is None else Path(args.defmo_weights)
+
+
+def _mask_source(args: argparse.Namespace, device: torch.device) -> MaskSource:
+    from stages.masks import choose_masks, print_line
+
+    return choose_masks(args.masks, _defmo_weights(args), device, log=None if args.quiet else print_line)
 
 
 def _parse_box(text: str | None) -> tuple[int, int, int, int] | None:
@@ -125,6 +141,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     crop = make_crop(image.to(device), background.to(device), box, camera, config.crop)
     out = Path(args.out or f"runs/{Path(args.image).stem}")
     folder = OutputFolder(out, args.overwrite)
+    masks = _mask_source(args, device).masks(0, crop, config.render.time_steps)
     steps = config.fit.iterations * len(config.fit.prototypes)
     # disable=None: no bar when stderr is not a terminal (logs, CI).
     with tqdm(total=steps, desc="fit", unit="step", disable=True if args.quiet else None, leave=False) as bar:
@@ -133,14 +150,15 @@ def cmd_fit(args: argparse.Namespace) -> int:
             bar.update(1)
             bar.set_postfix(L_I=f"{losses['image']:.4f}")
 
-        fit = fit_frame(crop, config.fit, config.render, on_step=on_step)
+        fit = fit_frame(crop, config.fit, config.render, masks=masks, on_step=on_step)
     with folder as tmp:
-        write_fit(tmp, fit, crop, args.tsr, config.render)
+        write_fit(tmp, fit, crop, args.tsr, config.render, masks)
         save_config(tmp / "config.yaml", config)
     if not args.quiet:
         print(
             f"wrote {out}/: prototype {fit.prototype}, L_I {fit.losses['image']:.4f}, "
-            f"{fit.iterations} steps in {fit.seconds:.1f} s; mesh.glb, tsr.png, reconstruction.png, fit.json"
+            f"{fit.iterations} steps in {fit.seconds:.1f} s; mesh.glb, tsr.png, reconstruction.png, "
+            f"{'masks.png, ' if masks is not None else ''}fit.json"
         )
     return 0
 
@@ -190,6 +208,8 @@ def cmd_process(args: argparse.Namespace) -> int:
         focal_px=args.focal_px,
         object_diameter=args.object_diameter,
         overwrite=args.overwrite,
+        masks=args.masks,
+        defmo_weights=_defmo_weights(args),
     )
     if not video.is_file():
         raise SfbError(f"video not found: {video}")
@@ -251,6 +271,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.max_frames is not None and args.max_frames < 1:
         raise SfbError(f"--max-frames must be at least 1, got {args.max_frames}")
     sequences = _eval_sequences(args)
+    masks = _mask_source(args, device)
     modes = MODES if args.mode == "both" else (args.mode,)
     out = Path(args.out or f"runs/eval-{args.dataset}")
     _fresh_folder(out, args.overwrite)
@@ -262,10 +283,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
     with tqdm(total=frames, desc="eval", unit="frame", disable=True if args.quiet else None) as bar:
         for done, (sequence, mode) in enumerate(runs, start=1):
             bar.set_postfix(sequence=sequence.name, mode=mode)
-            rows += run_sequence(sequence, config, mode, device, args.max_frames, on_frame=lambda _: bar.update(1))
+            rows += run_sequence(
+                sequence, config, mode, device, args.max_frames, on_frame=lambda _: bar.update(1), masks=masks
+            )
             # Tables after every sequence: an interrupted evaluation keeps what it finished, marked.
             note = "" if done == len(runs) else f"Incomplete: {done} of {len(runs)} sequence runs finished.\n\n"
-            write_tables(out, rows, note)
+            write_tables(out, rows, f"{note}Sub-frame masks: {masks.name} ({masks.reason}).\n\n")
     if not args.quiet:
         print(markdown(summarise(rows)))
         print(f"wrote {out}/: table.md, sequences.csv, frames.csv, config.yaml")
@@ -307,6 +330,16 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--device", default="auto", help="auto (CUDA if present), cpu or cuda")
     common.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     common.add_argument("--quiet", action="store_true", help="print nothing on success")
+    common.add_argument(
+        "--masks",
+        choices=["auto", "defmo", "diff"],
+        default="auto",
+        help="sub-frame masks for the fit: DeFMO's (L_S; defmo downloads its weights if missing), "
+        "the difference image (L_D), or auto: DeFMO when its weights are here, else diff",
+    )
+    common.add_argument(
+        "--defmo-weights", metavar="FOLDER", help="folder with DeFMO's encoder_best.pt, rendering_best.pt"
+    )
     demo = sub.add_parser("demo", parents=[common], help="generate a short clip with ground truth and process it")
     demo.add_argument("--out", default="runs/demo", help="output folder")
     demo.set_defaults(func=cmd_demo)

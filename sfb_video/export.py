@@ -86,17 +86,22 @@ def _jsonable(x: Any) -> Any:
     raise TypeError(f"cannot write {type(x).__name__} as JSON")
 
 
-def write_fit(folder: Path, fit: FitResult, crop: Crop, tsr: int, render_config: RenderConfig) -> None:
+def write_fit(
+    folder: Path, fit: FitResult, crop: Crop, tsr: int, render_config: RenderConfig, masks: torch.Tensor | None
+) -> None:
     """Everything a single-frame fit produced, into ``folder``.
 
     Files: reconstruction.png (input | I_hat | 4x residual, in the crop), tsr.png (``tsr``
-    sub-frames over the background), mesh.obj/.mtl/.png and mesh.glb, fit.json (prototype,
-    losses, motion, boxes, camera, timing) and loss_curve.csv.
+    sub-frames over the background), masks.png (the (N, h, w) sub-frame ``masks`` the fit used,
+    when it used any), mesh.obj/.mtl/.png and mesh.glb, fit.json (prototype, losses, masks,
+    motion, boxes, camera, timing) and loss_curve.csv.
     """
     residual = (crop.image - fit.reconstruction).abs().mul(4).clamp(0, 1)
     write_image(folder / "reconstruction.png", torch.cat((crop.image, fit.reconstruction, residual), dim=2))
     subframes = fit.state.render_subframes(crop.camera, crop.background, tsr, 4, render_config)
     write_image(folder / "tsr.png", torch.cat(list(subframes), dim=2))
+    if masks is not None:
+        write_image(folder / "masks.png", torch.cat(list(masks), dim=1).expand(3, -1, -1))
     write_obj(fit.state, folder)
     write_glb(fit.state, folder / "mesh.glb")
     write_json(
@@ -106,6 +111,7 @@ def write_fit(folder: Path, fit: FitResult, crop: Crop, tsr: int, render_config:
             "losses": fit.losses,
             "iterations": fit.iterations,
             "seconds": fit.seconds,
+            "masks": "diff" if masks is None else "defmo",
             "crop_box": list(crop.box),
             "crop_size": list(crop.image.shape[1:][::-1]),
             "crop_camera": dataclasses.asdict(crop.camera),

@@ -169,7 +169,8 @@ def fit_frame(
         config: iterations, learning rate, loss weights, prototypes.
         render_config: time steps and soft-silhouette sharpness.
         warm: start from here (one prototype, ``warm_iterations``, early stop) instead of cold.
-        masks: (N, h, w) sub-frame masks in time order for L_S; without them L_D is used.
+        masks: (N, h, w) sub-frame masks in time order for L_S; without them L_D is used. L_S
+            makes the fit run in their order, so orient them to agree with ``warm``.
         on_step: called with (step, loss terms) after every step.
 
     Raises:

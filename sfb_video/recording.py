@@ -16,6 +16,11 @@ Entity layout (what each path holds):
     world/camera/image/detection   Boxes2D: the detected object box; Clear on frames without one.
     world/camera/image/mask        SegmentationImage: the detection mask (class 1 = "object",
                                    uncompressed); Clear on frames without one.
+    world/camera/image/subframe_mask  SegmentationImage, subframe timeline only: the sub-frame mask
+                                   (DeFMO's; class 2 = "sub-frame mask") each fit used, in the
+                                   fit's time order; only in runs with such masks.
+    masks                          TextLog: the masks each frame's fit used ("diff", or "defmo"
+                                   and whether DeFMO's order was kept or reversed).
     world/object                   Mesh3D: the fitted textured mesh in object coordinates (unit
                                    scale), and Transform3D (translation + mat3x3): its pose, object
                                    -> camera coordinates.
@@ -75,6 +80,7 @@ JPEG_QUALITY = 90
 # stderr and readers treat the file as the legacy format.
 WRITE_FOOTER = True
 MASK_CLASS = 1
+SUBFRAME_MASK_CLASS = 2
 # In object sizes (the unit of the 3D scene), so they scale with the object.
 TRAJECTORY_LINE_RADIUS = 0.02
 TRAJECTORY_POINT_RADIUS = 0.05
@@ -104,6 +110,7 @@ class Recorder(AtomicOutput):
         self.path = Path(path)
         self.camera = camera
         self._frame: int | None = None
+        self._masks_shown = False
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".tmp.rrd")
@@ -216,6 +223,40 @@ class Recorder(AtomicOutput):
                 strict=True,
             )
 
+    def log_masks(self, index: int, source: str, box: Box, masks: torch.Tensor | None, n: int) -> None:
+        """Log which masks the fit of frame ``index`` used and, when it used sub-frame masks, show them.
+
+        Args:
+            source: what the fit used, in words (``"diff"``, ``"defmo"``, with their order).
+            box: (x, y, w, h) the crop box the masks cover, in frame pixels.
+            masks: (N, h, w) soft masks in [0, 1] at the crop's working size, in time order, or
+                None (a fit without them; clears earlier masks).
+            n: the sub-frames of this frame on the subframe timeline (as in :meth:`log_fit`);
+                each shows the mask at its mid-time.
+        """
+        self._at(frame=index)
+        self._log("masks", rr.TextLog(source))
+        if masks is None:
+            if self._masks_shown:
+                self._at(subframe=index * n)
+                self._log("world/camera/image/subframe_mask", rr.Clear(recursive=False))
+                self._masks_shown = False
+            return
+        check_shape(masks, (None, None, None), "masks")
+        x, y, w, h = box
+        if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > self.camera.width or y + h > self.camera.height:
+            raise SfbError(f"mask box {box} is not inside the {self.camera.width}x{self.camera.height} frame")
+        pasted = torch.nn.functional.interpolate(
+            masks.detach().float().cpu()[:, None], size=(h, w), mode="bilinear", align_corners=False
+        )[:, 0]
+        for k in range(n):
+            ids = np.zeros((self.camera.height, self.camera.width), dtype=np.uint8)
+            j = min(int((k + 0.5) * masks.shape[0] / n), masks.shape[0] - 1)
+            ids[y : y + h, x : x + w] = (pasted[j] > 0.5).numpy().astype(np.uint8) * SUBFRAME_MASK_CLASS
+            self._at(subframe=index * n + k)
+            self._log("world/camera/image/subframe_mask", rr.SegmentationImage(ids, opacity=0.5))
+        self._masks_shown = True
+
     def log_trajectory(self, points: np.ndarray) -> None:
         """Log the (P, 3) 3D positions so far at the last frame logged, replacing the previous ones."""
         if self._frame is None:
@@ -280,7 +321,8 @@ class Recorder(AtomicOutput):
         )
         # On the parent, so that the Clear of a frame without a mask cannot touch it; the mask finds
         # its class colours there.
-        self._log("world/camera/image", rr.AnnotationContext([(MASK_CLASS, "object", (255, 64, 64))]), static=True)
+        classes = [(MASK_CLASS, "object", (255, 64, 64)), (SUBFRAME_MASK_CLASS, "sub-frame mask", (64, 160, 255))]
+        self._log("world/camera/image", rr.AnnotationContext(classes), static=True)
 
     def _at(self, *, frame: int | None = None, subframe: int | None = None) -> None:
         """Set exactly the given timelines for the next log calls (the others are unset)."""

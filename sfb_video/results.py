@@ -40,6 +40,11 @@ class FrameResult:
         losses: loss terms at the kept parameters.
         curve: the loss terms at every optimisation step of the kept prototype.
         seconds: wall time of the fit.
+        mask_source: the masks the fit used: ``"diff"`` (L_D on the difference mask), ``"defmo"``
+            (L_S on DeFMO's sub-frame masks), or another :class:`stages.masks.MaskSource`'s name.
+        masks: (N, h, w) the sub-frame masks the fit used, in this result's time order, or None
+            for the difference mask.
+        masks_reversed: whether that order is the reverse of the masks' own (DeFMO's).
     """
 
     index: int
@@ -52,11 +57,16 @@ class FrameResult:
     losses: dict[str, float]
     curve: list[dict[str, float]]
     seconds: float
+    mask_source: str = "diff"
+    masks: torch.Tensor | None = None
+    masks_reversed: bool = False
 
     def reversed(self) -> FrameResult:
-        """The same fit with its motion run backwards in time."""
+        """The same fit with its motion (and its sub-frame masks) run backwards in time."""
         state = dataclasses.replace(self.state, motion=self.state.motion.reversed())
-        return dataclasses.replace(self, state=state)
+        if self.masks is None:
+            return dataclasses.replace(self, state=state)
+        return dataclasses.replace(self, state=state, masks=self.masks.flip(0), masks_reversed=not self.masks_reversed)
 
 
 def result_path(folder: Path, index: int) -> Path:
@@ -83,6 +93,10 @@ def save_result(folder: Path, result: FrameResult) -> None:
         "losses": dict(result.losses),
         "curve": list(result.curve),
         "seconds": result.seconds,
+        "mask_source": result.mask_source,
+        # 8 bits are plenty for a soft mask and keep a frame's file small.
+        "masks": None if result.masks is None else (result.masks.detach().cpu() * 255).round().to(torch.uint8),
+        "masks_reversed": result.masks_reversed,
     }
     buffer = io.BytesIO()
     torch.save(record, buffer)
@@ -106,6 +120,9 @@ def load_result(path: Path) -> FrameResult:
             losses=r["losses"],
             curve=r["curve"],
             seconds=float(r["seconds"]),
+            mask_source=r.get("mask_source", "diff"),
+            masks=None if r.get("masks") is None else r["masks"].float() / 255,
+            masks_reversed=bool(r.get("masks_reversed", False)),
         )
     except (OSError, RuntimeError, KeyError, TypeError, EOFError) as exc:
         raise SfbError(f"cannot read the frame result {path}: {exc}") from None

@@ -138,6 +138,15 @@ class Exported:
     best: int | None = None
 
 
+def _mask_order(result: FrameResult) -> str | None:
+    """Whether a fit's sub-frame masks kept their own order ("as given") or were "reversed" to
+    join the track (which wins over DeFMO's order: one blurred image cannot fix it); None
+    without sub-frame masks."""
+    if result.masks is None:
+        return None
+    return "reversed" if result.masks_reversed else "as given"
+
+
 def _fit_record(result: FrameResult, speed: float, diameter: float | None) -> dict[str, Any]:
     record: dict[str, Any] = {
         "start": result.start,
@@ -145,10 +154,12 @@ def _fit_record(result: FrameResult, speed: float, diameter: float | None) -> di
         "losses": result.losses,
         "iterations": len(result.curve),
         "seconds": result.seconds,
-        "masks": "difference",
+        "masks": result.mask_source,
         "speed_sizes_per_s": speed,
         "motion": motion_record(result.state.motion),
     }
+    if result.masks is not None:
+        record["masks_order"] = _mask_order(result)
     if diameter is not None:
         record["speed_km_per_h"] = speed * diameter * 3.6
     return record
@@ -191,6 +202,9 @@ def export_frames(
             recorder.log_fit(
                 frame.index, result.state, rendered.reconstruction, rendered.subframes, result.losses, result.curve
             )
+            order = _mask_order(result)
+            source = result.mask_source if order is None else f"{result.mask_source}, order {order}"
+            recorder.log_masks(frame.index, source, result.crop_box, result.masks, n)
             trajectory.append(result.state.motion.at(exposure_times(n))[1].numpy())
             recorder.log_trajectory(np.concatenate(trajectory))
             write_glb(result.state, folder / "meshes" / f"frame_{frame.index:05d}.glb")

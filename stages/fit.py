@@ -3,13 +3,15 @@
 A track's first frame starts cold (every prototype, full iterations). Each next frame starts
 warm from the previous frame's mesh, texture and motion, its start pose predicted by continuing
 that motion across the gap between the two exposures. One frame cannot tell which end of its
-streak came first; :func:`join` picks the directions that make consecutive frames meet end to
-start.
+streak came first (DeFMO's sub-frame masks order a frame, but may run either way themselves);
+:func:`join` picks the directions that make consecutive frames meet end to start, and that order
+between frames wins over DeFMO's.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import torch
 
@@ -22,6 +24,7 @@ from sfb_video.model.motion import Motion
 from sfb_video.results import FrameResult
 from stages.background import FrameWithBackground
 from stages.detect import Detection, Prediction
+from stages.masks import MaskSource, orient_masks
 
 
 def continue_motion(motion: Motion, frames_ahead: int, exposure_fraction: float) -> Motion:
@@ -48,8 +51,12 @@ def fit_detection(
     config: Config,
     previous: FrameResult | None,
     device: torch.device,
+    masks: MaskSource | None = None,
 ) -> FrameResult:
     """Fit the object of one frame, warm from ``previous`` when given (a frame of the same track).
+
+    With DeFMO ``masks``, the fit uses L_S on them, in the time direction the warm start
+    predicts when there is one (DeFMO's own order otherwise); without, L_D.
 
     Args:
         frame: the frame and its background, (3, H, W) each.
@@ -58,6 +65,7 @@ def fit_detection(
         config: crop, fit, render and video settings.
         previous: the result of an earlier frame of the same track, or None for a cold start.
         device: where to fit.
+        masks: where the sub-frame masks come from (None: the difference mask).
 
     Raises:
         NoObjectError: when the crop around the detection shows no difference after all.
@@ -68,14 +76,20 @@ def fit_detection(
     if previous is not None:
         motion = continue_motion(previous.state.motion, frame.index - previous.index, config.video.exposure_fraction)
         warm = WarmStart(previous.prototype, previous.state.vertices, previous.state.texture, motion.to(device))
+    started = time.perf_counter()
+    subframe_masks = None if masks is None else masks.masks(frame.index, crop, config.render.time_steps)
+    mask_seconds = time.perf_counter() - started
+    flipped = False
+    if subframe_masks is not None and warm is not None:
+        subframe_masks, flipped = orient_masks(subframe_masks, crop.camera.project(warm.motion.x0)[0])
     # A track's first frame decides the shape the whole track refines: it tries every prototype.
     first = dataclasses.replace(config.fit, prototypes=config.video.track_prototypes)
-    fit = fit_frame(crop, config.fit if warm is not None else first, config.render, warm=warm)
-    seconds = fit.seconds
+    fit = fit_frame(crop, config.fit if warm is not None else first, config.render, warm=warm, masks=subframe_masks)
+    seconds = mask_seconds + fit.seconds
     if warm is not None and fit.losses["image"] > config.video.retry_ratio * previous.losses["image"]:
         # The track's shape or prediction no longer explains this frame (a bounce, a turn, a
         # bad previous fit): start cold as well and keep whichever explains the frame better.
-        cold = fit_frame(crop, config.fit, config.render)
+        cold = fit_frame(crop, config.fit, config.render, masks=subframe_masks)
         seconds += cold.seconds
         if cold.losses["image"] < fit.losses["image"]:
             fit, warm = cold, None
@@ -91,6 +105,9 @@ def fit_detection(
         losses=fit.losses,
         curve=fit.curves[fit.prototype],
         seconds=seconds,
+        mask_source="diff" if subframe_masks is None else masks.name,
+        masks=None if subframe_masks is None else subframe_masks.cpu(),
+        masks_reversed=flipped,
     )
 
 

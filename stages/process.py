@@ -32,6 +32,7 @@ from stages.background import FrameWithBackground, with_backgrounds
 from stages.detect import Detection, choose_blob, difference_mask, moving_mask
 from stages.export import Exported, export_frames, write_csv
 from stages.fit import continue_motion, fit_detection, join, predict
+from stages.masks import MaskSource, choose_masks, print_line
 from stages.read import probe
 
 RUN_FILE = "run.json"
@@ -51,6 +52,9 @@ class ProcessOptions:
         focal_px: the camera's focal length in pixels (else from ``camera.fov_y_deg``).
         object_diameter: the object's real diameter in metres, for metric positions and speeds.
         overwrite: replace a finished run in ``out``.
+        masks: ``auto``, ``defmo`` or ``diff``: which sub-frame masks the fits use
+            (:func:`stages.masks.choose_masks`).
+        defmo_weights: a folder with DeFMO's weights (default: torch hub's cache).
     """
 
     video: Path
@@ -60,6 +64,8 @@ class ProcessOptions:
     focal_px: float | None = None
     object_diameter: float | None = None
     overwrite: bool = False
+    masks: str = "auto"
+    defmo_weights: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -84,7 +90,7 @@ def clip_camera(info: VideoInfo, config: Config, focal_px: float | None) -> Pinh
     return PinholeCamera(focal_px, focal_px, (info.width - 1) / 2, (info.height - 1) / 2, info.width, info.height)
 
 
-def _run_record(options: ProcessOptions, config: Config) -> dict:
+def _run_record(options: ProcessOptions, config: Config, masks: MaskSource) -> dict:
     video = options.video.resolve()
     stat = video.stat()
     record = {
@@ -95,20 +101,23 @@ def _run_record(options: ProcessOptions, config: Config) -> dict:
         "focal_px": options.focal_px,
         "object_diameter": options.object_diameter,
         "config": config_to_dict(config),
+        "masks": masks.name,
+        "masks_reason": masks.reason,
     }
-    text = json.dumps({k: v for k, v in record.items() if k != "object_diameter"}, sort_keys=True)
+    # What changes the fits, nothing else: a resumed run must not mix two kinds of fit.
+    text = json.dumps({k: v for k, v in record.items() if k not in ("object_diameter", "masks_reason")}, sort_keys=True)
     record["fingerprint"] = hashlib.sha256(text.encode()).hexdigest()[:16]
     return record
 
 
-def prepare_folder(options: ProcessOptions, config: Config) -> bool:
+def prepare_folder(options: ProcessOptions, config: Config, masks: MaskSource) -> bool:
     """Create, resume or replace the run folder; True when earlier results are resumed.
 
     Raises:
         SfbError: a finished run without ``overwrite``; a folder that is not a run; a run of
             another clip or config; an unwritable folder.
     """
-    out, record = options.out, _run_record(options, config)
+    out, record = options.out, _run_record(options, config, masks)
     run_file = out / RUN_FILE
     resume = False
     if out.exists():
@@ -125,7 +134,7 @@ def prepare_folder(options: ProcessOptions, config: Config) -> bool:
             old = json.loads(run_file.read_text())
             if old.get("fingerprint") != record["fingerprint"]:
                 raise SfbError(
-                    f"output folder {out} holds an unfinished run of another clip or config; "
+                    f"output folder {out} holds an unfinished run of another clip, config or mask source; "
                     "pass --overwrite to start again"
                 )
             resume = True
@@ -206,9 +215,12 @@ def track_and_fit(
     info: VideoInfo,
     camera: PinholeCamera,
     device: torch.device,
+    masks: MaskSource | None = None,
     report: StepReport | None = None,
 ) -> list[FrameStatus]:
     """Detect and fit every frame, saving each result; earlier saved results are reused.
+
+    ``masks`` gives each fit its sub-frame masks (None: the difference mask).
 
     Returns:
         the status of every frame read.
@@ -235,7 +247,7 @@ def track_and_fit(
             try:
                 if result is None:
                     start = previous if config.video.warm_start else None
-                    result = fit_detection(frame, detection, camera, config, start, device)
+                    result = fit_detection(frame, detection, camera, config, start, device, masks)
                 status = FrameStatus(frame.index, "fitted", detection.box)
             except NoObjectError as exc:
                 status, result = FrameStatus(frame.index, "no_object", detection.box, str(exc)), None
@@ -324,6 +336,7 @@ def _summary(
         "tsr_video_frames": done.video_frames,
         "object_diameter_m": record["object_diameter"],
         "device": device_note,
+        "masks": {"source": record.get("masks", "diff"), "reason": record.get("masks_reason", "")},
         "outputs": ["tsr.mp4", "trajectory.csv", "meshes/", "recording.rrd", "summary.json"],
         "frames": frames,
     }
@@ -343,10 +356,11 @@ def process_clip(options: ProcessOptions, config: Config, device: torch.device, 
         raise SfbError(f"--object-diameter must be positive, got {options.object_diameter}")
     info = probe(options.video, config.video)
     camera = clip_camera(info, config, options.focal_px)
+    masks = choose_masks(options.masks, options.defmo_weights, device, log=None if quiet else print_line)
     created = not options.out.exists()
-    resumed = prepare_folder(options, config)
+    resumed = prepare_folder(options, config, masks)
     try:
-        return _process(options, config, info, camera, device, quiet, resumed)
+        return _process(options, config, info, camera, device, quiet, resumed, masks)
     except BaseException:
         # A run that failed before finishing any frame leaves nothing behind to resume.
         if created and not any((options.out / "frames").glob("*.pt")):
@@ -362,6 +376,7 @@ def _process(
     device: torch.device,
     quiet: bool,
     resumed: bool,
+    masks: MaskSource,
 ) -> dict:
     save_config(options.out / "config.yaml", config)
     saved = len(saved_frames(options.out)) if resumed else 0
@@ -376,6 +391,6 @@ def _process(
             if result is not None:
                 bar.set_postfix(frame=status.index, start=result.start, L_I=f"{result.losses['image']:.4f}")
 
-        statuses = track_and_fit(options, config, info, camera, device, report)
+        statuses = track_and_fit(options, config, info, camera, device, masks, report)
     write_statuses(options.out, statuses)
     return export_run(options.out, config, config.video.tsr, str(device))

@@ -16,7 +16,7 @@ import torch
 from sfb_video.checks import SfbError
 from sfb_video.config import load_config
 from sfb_video.crop import make_crop
-from sfb_video.evaluation.synthetic import FrameScore, fit_synthetic_frame, score_fit, synthetic_crop
+from sfb_video.evaluation.synthetic import FrameScore, crop_masks, fit_synthetic_frame, score_fit, synthetic_crop
 from sfb_video.fitter import NoObjectError, WarmStart, fit_frame
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion
@@ -132,3 +132,13 @@ def test_non_finite_input_is_rejected_before_fitting() -> None:
     crop = make_crop(image, background, (30, 20, 10, 10), camera, config.crop)
     with pytest.raises(SfbError, match="NaN"):
         fit_frame(crop, config.fit, config.render)
+
+
+@pytest.mark.parametrize("reverse", [False, True])
+def test_subframe_masks_set_the_time_direction_of_a_cold_fit(reverse: bool) -> None:
+    config = load_config("fast", ["fit.iterations=60"])
+    clip = _clip("ball", 0)
+    crop = synthetic_crop(clip, 0, config)
+    masks = crop_masks(clip, 0, crop)
+    fit = fit_frame(crop, config.fit, config.render, masks=masks.flip(0) if reverse else masks)
+    assert score_fit(fit, clip, 0, config).flipped == reverse

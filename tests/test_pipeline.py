@@ -26,6 +26,7 @@ from sfb_video.results import load_results
 from sfb_video.synth import SyntheticClip
 from sfb_video.video import VideoReader
 from stages.fit import continue_motion
+from stages.masks import choose_masks
 from stages.process import FrameStatus, ProcessOptions, prepare_folder, process_clip, track_and_fit
 
 CPU = torch.device("cpu")
@@ -151,9 +152,10 @@ def test_an_interrupted_run_resumes_from_the_last_finished_frame(run: Run, tmp_p
     camera = run.clip.camera
     with VideoReader(run.video) as reader:
         info = reader.info
-    prepare_folder(options, run.config)
+    masks = choose_masks("diff", None, CPU, log=None)
+    prepare_folder(options, run.config, masks)
     with pytest.raises(KeyboardInterrupt):
-        track_and_fit(options, run.config, info, camera, CPU, stop_after_two)
+        track_and_fit(options, run.config, info, camera, CPU, masks, stop_after_two)
     assert not (out / "summary.json").exists()
     saved = sorted(p.name for p in (out / "frames").iterdir())
     assert saved == ["frame_00000.pt", "frame_00001.pt"]

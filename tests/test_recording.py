@@ -236,6 +236,35 @@ def test_tsr_has_n_rows_per_fitted_frame_on_the_subframe_timeline_only(recorded:
     assert not times(recorded.chunks, "/tsr", "EncodedImage:blob", "frame")
 
 
+def test_masks_are_named_per_frame_and_subframe_masks_overlay_the_image(inputs: Inputs, tmp_path: Path) -> None:
+    x, y, w, h = BOX
+    masks = torch.zeros(2, h, w)  # at the crop's own size, here the box's
+    masks[0, :, : w // 2] = 1
+    masks[1, :, w // 2 :] = 1
+    path = tmp_path / "masks.rrd"
+    with Recorder(path, CAMERA, "masks") as rec:
+        for i in range(3):
+            rec.log_frame(i, inputs.images[i], inputs.background)
+            rec.log_masks(i, "defmo, order as given" if i == 0 else "diff", BOX, masks if i == 0 else None, N_SUB)
+    chunks = RrdReader(path).stream().to_chunks()
+    entity = "/world/camera/image/subframe_mask"
+    assert times(chunks, entity, "SegmentationImage:buffer", "subframe") == [0, 1, 2]
+    assert not times(chunks, entity, "SegmentationImage:buffer", "frame")
+    # Sub-frame k of 3 shows the mask at its mid-time: masks 0, 1, 1.
+    for k, half in ((0, slice(x, x + w // 2)), (1, slice(x + w // 2, x + w)), (2, slice(x + w // 2, x + w))):
+        buffer = one_at(chunks, entity, "SegmentationImage:buffer", "subframe", k)
+        ids = np.frombuffer(bytes(buffer), dtype=np.uint8).reshape(CAMERA.height, CAMERA.width)
+        expected = np.zeros_like(ids)
+        expected[y : y + h, half] = 2
+        assert np.array_equal(ids, expected), k
+    # Frame 1 has none and clears them; frame 2 has nothing left to clear.
+    assert times(chunks, entity, "Clear:is_recursive", "subframe") == [N_SUB]
+    said = rows(chunks, "/masks", "TextLog:text", "frame")
+    assert said == [(0, ["defmo, order as given"]), (1, ["diff"]), (2, ["diff"])]
+    with Recorder(tmp_path / "bad.rrd", CAMERA, "bad") as rec, pytest.raises(SfbError, match="not inside"):
+        rec.log_masks(0, "defmo", (60, 40, 10, 10), masks, N_SUB)
+
+
 def test_mesh_has_the_triangles_texcoords_and_texture_of_the_state(recorded: Recorded) -> None:
     state = recorded.inputs.state
     entity = "/world/object"

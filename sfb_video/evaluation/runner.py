@@ -34,6 +34,7 @@ from stages.background import FrameWithBackground
 from stages.detect import Detection
 from stages.export import STEPS_PER_SUBFRAME
 from stages.fit import fit_detection, join
+from stages.masks import MaskSource
 
 MODES = ("per-frame", "video")
 
@@ -72,9 +73,16 @@ def _tensor(image: np.ndarray) -> torch.Tensor:
 
 
 def fit_benchmark_frame(
-    frame: BenchmarkFrame, camera: PinholeCamera, config: Config, previous: FrameResult | None, device: torch.device
+    frame: BenchmarkFrame,
+    camera: PinholeCamera,
+    config: Config,
+    previous: FrameResult | None,
+    device: torch.device,
+    masks: MaskSource | None = None,
 ) -> FrameResult:
     """Fit one frame from the benchmark's inputs, warm from ``previous`` when given.
+
+    ``masks`` gives the fit its sub-frame masks (None: the difference mask).
 
     Raises:
         NoObjectError: when the box shows no difference from the background.
@@ -84,7 +92,7 @@ def fit_benchmark_frame(
     blob = torch.zeros(height, width, dtype=torch.bool)
     blob[y : y + h, x : x + w] = True
     inputs = FrameWithBackground(frame.index, _tensor(frame.image), _tensor(frame.background))
-    return fit_detection(inputs, Detection(frame.index, frame.box, blob), camera, config, previous, device)
+    return fit_detection(inputs, Detection(frame.index, frame.box, blob), camera, config, previous, device, masks)
 
 
 def estimate_subframes(result: FrameResult, frame: BenchmarkFrame, camera: PinholeCamera, config: Config) -> np.ndarray:
@@ -135,10 +143,12 @@ def run_sequence(
     device: torch.device,
     max_frames: int | None = None,
     on_frame: Callable[[FrameRow], None] | None = None,
+    masks: MaskSource | None = None,
 ) -> list[FrameRow]:
     """Fit and score the frames of ``sequence`` in ``mode`` (one of ``MODES``).
 
     Args:
+        masks: where the fits' sub-frame masks come from (None: the difference mask).
         max_frames: stop after this many frames (the first ones), for quick looks.
         on_frame: called with each frame's row as soon as it is scored (progress).
     """
@@ -158,7 +168,8 @@ def run_sequence(
         camera = clip.camera if clip is not None else PinholeCamera.from_fov(width, height, config.camera.fov_y_deg)
         start = time.perf_counter()
         try:
-            result = fit_benchmark_frame(frame, camera, config, previous if mode == "video" else None, device)
+            warm = previous if mode == "video" else None
+            result = fit_benchmark_frame(frame, camera, config, warm, device, masks)
             estimate = estimate_subframes(result, frame, camera, config)
         except NoObjectError:
             row = FrameRow(sequence.dataset, sequence.name, frame.index, mode, "no_object", 0.0, 0.0, 0.0, 0.0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import torch
@@ -77,3 +78,20 @@ def test_results_round_trip_through_the_run_folder(tmp_path) -> None:
     for name in ("x0", "dx", "rot0", "omega"):
         assert torch.equal(getattr(back.state.motion, name), getattr(result.state.motion, name))
     assert isinstance(back.state.topology, MeshTopology)
+
+
+def test_subframe_masks_are_saved_and_turn_with_the_result(tmp_path) -> None:
+    masks = torch.rand(4, 6, 8, generator=torch.Generator().manual_seed(1))
+    plain = _result(3, _motion((0.1, 0.2, 5.0), (1.0, 0.5, 0.2)))
+    result = dataclasses.replace(plain, mask_source="defmo", masks=masks)
+    save_result(tmp_path, result)
+    back = load_result(tmp_path / "frames" / "frame_00003.pt")
+    assert back.mask_source == "defmo" and not back.masks_reversed
+    assert (back.masks - masks).abs().max() <= 0.5 / 255 + 1e-6  # kept as 8 bits
+    turned = result.reversed()
+    assert torch.equal(turned.masks, masks.flip(0)) and turned.masks_reversed
+    assert not turned.reversed().masks_reversed
+    save_result(tmp_path, plain)
+    again = load_result(tmp_path / "frames" / "frame_00003.pt")
+    assert again.mask_source == "diff" and again.masks is None
+    assert plain.reversed().masks is None
