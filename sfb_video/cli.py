@@ -23,6 +23,7 @@ from sfb_video.checks import SfbError
 from sfb_video.config import load_config, save_config
 
 if TYPE_CHECKING:
+    from sfb_video.config import Config
     from stages.masks import MaskSource
 
 NOTHING_FOUND = 3
@@ -104,10 +105,10 @@ def _defmo_weights(args: argparse.Namespace) -> Path | None:
     return None if args.defmo_weights is None else Path(args.defmo_weights)
 
 
-def _mask_source(args: argparse.Namespace, device: torch.device) -> MaskSource:
+def _mask_source(args: argparse.Namespace, config: Config, device: torch.device) -> MaskSource:
     from stages.masks import choose_masks, print_line
 
-    return choose_masks(args.masks, _defmo_weights(args), device, log=None if args.quiet else print_line)
+    return choose_masks(args.masks, _defmo_weights(args), config.crop, device, log=None if args.quiet else print_line)
 
 
 def _parse_box(text: str | None) -> tuple[int, int, int, int] | None:
@@ -128,6 +129,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from sfb_video.fitter import NoObjectError, fit_frame
     from sfb_video.geometry.camera import PinholeCamera
     from sfb_video.imageio import read_image
+    from stages.background import FrameWithBackground
 
     config = load_config(args.config, args.set)
     device = resolve_device(args.device)
@@ -141,7 +143,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     crop = make_crop(image.to(device), background.to(device), box, camera, config.crop)
     out = Path(args.out or f"runs/{Path(args.image).stem}")
     folder = OutputFolder(out, args.overwrite)
-    masks = _mask_source(args, device).masks(0, crop, config.render.time_steps)
+    frame = FrameWithBackground(0, image.to(device), background.to(device))
+    masks = _mask_source(args, config, device).masks(frame, box, crop, config.render.time_steps)
     steps = config.fit.iterations * len(config.fit.prototypes)
     # disable=None: no bar when stderr is not a terminal (logs, CI).
     with tqdm(total=steps, desc="fit", unit="step", disable=True if args.quiet else None, leave=False) as bar:
@@ -271,7 +274,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.max_frames is not None and args.max_frames < 1:
         raise SfbError(f"--max-frames must be at least 1, got {args.max_frames}")
     sequences = _eval_sequences(args)
-    masks = _mask_source(args, device)
+    masks = _mask_source(args, config, device)
     modes = MODES if args.mode == "both" else (args.mode,)
     out = Path(args.out or f"runs/eval-{args.dataset}")
     _fresh_folder(out, args.overwrite)

@@ -11,6 +11,7 @@ called.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -20,10 +21,11 @@ from kornia.feature import DeFMO
 from kornia.feature.defmo import urls
 
 from sfb_video.checks import SfbError
-from sfb_video.crop import Crop
+from sfb_video.config import CropConfig
+from sfb_video.crop import Box, Crop, crop_box
 
 INPUT_SIZE = (240, 320)
-"""(height, width) DeFMO was trained at; crops are 4:3 already, so resizing keeps their shape."""
+"""(height, width) DeFMO was trained at; its windows are 4:3 like crops, so resizing keeps shapes."""
 WEIGHT_FILES = {"encoder": "encoder_best.pt", "rendering": "rendering_best.pt"}
 """Each part of the network and the file that holds its weights (kornia's names)."""
 DOWNLOAD_TIMEOUT_S = 30.0
@@ -94,22 +96,45 @@ def time_bins(count: int, n: int) -> torch.Tensor:
 
 
 @torch.no_grad()  # not inference_mode: the masks go into a loss that autograd tracks
-def defmo_masks(network: DeFMO, crop: Crop, n: int) -> torch.Tensor:
-    """DeFMO's alpha masks of ``crop`` averaged into ``n`` sub-frames, at the crop's size.
+def defmo_masks(
+    network: DeFMO,
+    image: torch.Tensor,
+    background: torch.Tensor,
+    box: Box,
+    crop: Crop,
+    n: int,
+    config: CropConfig,
+) -> torch.Tensor:
+    """DeFMO's alpha masks of the object in ``box``, averaged into ``n`` sub-frames, on ``crop``.
 
-    The crop's image and background (3, h, w) are resized to DeFMO's 320x240 and stacked into
-    its 6-channel input; the alphas come back at that size and are resized to (h, w).
+    DeFMO sees a 4:3 window of the frame around ``box``, wider than the crop
+    (``config.defmo_margin``), resized to its 320x240 with the background as 6 channels; its
+    alphas are resized back onto the window and cut to the crop at the crop's working size.
+
+    Args:
+        image, background: (3, H, W) the whole frame and its background, in [0, 1].
+        box: (x, y, w, h) the object's box in the frame.
+        crop: the working crop the fit uses, cut around ``box``.
+        n: sub-frames to average DeFMO's 24 instants into.
 
     Returns:
-        (n, h, w) soft masks in [0, 1], in DeFMO's time order (which may run either way: one
-        blurred image cannot tell).
+        (n, h, w) soft masks in [0, 1] at the crop's size, in DeFMO's time order (which may run
+        either way: one blurred image cannot tell).
     """
     device = next(network.parameters()).device
-    size = crop.image.shape[1:]
-    pair = torch.cat((crop.image, crop.background))[None].to(device)
+    height, width = image.shape[1:]
+    wx, wy, ww, wh = crop_box(
+        box, (width, height), replace(config, margin=config.defmo_margin, aspect=INPUT_SIZE[1] / INPUT_SIZE[0])
+    )
+    pair = torch.cat((image, background))[None, :, wy : wy + wh, wx : wx + ww].to(device)
     pair = F.interpolate(pair, size=INPUT_SIZE, mode="bilinear", antialias=True, align_corners=False)
-    alpha = network(pair)[0, :, 3]  # (24, 240, 320)
-    alpha = alpha[:, : INPUT_SIZE[0], : INPUT_SIZE[1]]
+    alpha = network(pair)[0, :, 3, : INPUT_SIZE[0], : INPUT_SIZE[1]]  # (24, 240, 320)
     grouped = torch.einsum("nk,khw->nhw", time_bins(alpha.shape[0], n).to(alpha), alpha)
-    masks = F.interpolate(grouped[None], size=size, mode="bilinear", antialias=True, align_corners=False)[0]
+    window = F.interpolate(grouped[None], size=(wh, ww), mode="bilinear", align_corners=False)[0]
+    cx, cy, cw, ch = crop.box
+    on_crop = torch.zeros(n, ch, cw, device=window.device)
+    x0, x1, y0, y1 = max(wx, cx), min(wx + ww, cx + cw), max(wy, cy), min(wy + wh, cy + ch)
+    on_crop[:, y0 - cy : y1 - cy, x0 - cx : x1 - cx] = window[:, y0 - wy : y1 - wy, x0 - wx : x1 - wx]
+    size = crop.image.shape[1:]
+    masks = F.interpolate(on_crop[None], size=size, mode="bilinear", antialias=True, align_corners=False)[0]
     return masks.clamp(0, 1).to(crop.image.device)

@@ -77,7 +77,7 @@ def fit_detection(
         motion = continue_motion(previous.state.motion, frame.index - previous.index, config.video.exposure_fraction)
         warm = WarmStart(previous.prototype, previous.state.vertices, previous.state.texture, motion.to(device))
     started = time.perf_counter()
-    subframe_masks = None if masks is None else masks.masks(frame.index, crop, config.render.time_steps)
+    subframe_masks = None if masks is None else masks.masks(frame, detection.box, crop, config.render.time_steps)
     mask_seconds = time.perf_counter() - started
     flipped = False
     if subframe_masks is not None and warm is not None:

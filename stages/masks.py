@@ -19,14 +19,17 @@ import torch
 from kornia.feature import DeFMO
 
 from sfb_video.checks import SfbError
-from sfb_video.crop import Crop
+from sfb_video.config import CropConfig
+from sfb_video.crop import Box, Crop
 from sfb_video.defmo import cache_dir, defmo_masks, download_weights, has_weights, load_defmo
+from stages.background import FrameWithBackground
 
 MODES = ("auto", "defmo", "diff")
 
 
-MaskMaker = Callable[[int, Crop, int], torch.Tensor]
-"""(frame index, its crop, n) -> (n, h, w) sub-frame masks of the crop in some time order."""
+MaskMaker = Callable[[FrameWithBackground, Box, Crop, int], torch.Tensor]
+"""(frame, object box, the crop around it, n) -> (n, h, w) sub-frame masks on the crop, in some
+time order."""
 
 
 @dataclass(frozen=True)
@@ -44,14 +47,18 @@ class MaskSource:
     reason: str
     make: MaskMaker | None = None
 
-    def masks(self, index: int, crop: Crop, n: int) -> torch.Tensor | None:
-        """(n, h, w) sub-frame masks of frame ``index``'s ``crop``, or None for the difference mask."""
-        return None if self.make is None else self.make(index, crop, n)
+    def masks(self, frame: FrameWithBackground, box: Box, crop: Crop, n: int) -> torch.Tensor | None:
+        """(n, h, w) sub-frame masks of the object in ``box`` on ``crop``, or None for the difference mask."""
+        return None if self.make is None else self.make(frame, box, crop, n)
 
 
-def defmo_source(network: DeFMO, reason: str) -> MaskSource:
+def defmo_source(network: DeFMO, config: CropConfig, reason: str) -> MaskSource:
     """DeFMO's masks, in DeFMO's time order (which may run either way: one image cannot tell)."""
-    return MaskSource("defmo", reason, lambda index, crop, n: defmo_masks(network, crop, n))
+
+    def make(frame: FrameWithBackground, box: Box, crop: Crop, n: int) -> torch.Tensor:
+        return defmo_masks(network, frame.image, frame.background, box, crop, n, config)
+
+    return MaskSource("defmo", reason, make)
 
 
 def print_line(line: str) -> None:
@@ -60,7 +67,11 @@ def print_line(line: str) -> None:
 
 
 def choose_masks(
-    mode: str, weights: Path | None, device: torch.device, log: Callable[[str], None] | None = print_line
+    mode: str,
+    weights: Path | None,
+    config: CropConfig,
+    device: torch.device,
+    log: Callable[[str], None] | None = print_line,
 ) -> MaskSource:
     """Resolve ``--masks`` and ``--defmo-weights`` into a :class:`MaskSource`, saying which and why.
 
@@ -69,6 +80,7 @@ def choose_masks(
             (download the weights when missing) or ``diff``.
         weights: a folder holding DeFMO's ``encoder_best.pt`` and ``rendering_best.pt``
             (default: torch hub's cache).
+        config: where DeFMO looks around an object (``defmo_margin``).
         device: where DeFMO runs.
         log: receives the one line that says which masks are used and why (None: silent).
 
@@ -85,16 +97,16 @@ def choose_masks(
     if mode == "diff":
         source = MaskSource("diff", "asked for with --masks diff")
     elif weights is not None:
-        source = defmo_source(load_defmo(weights, device), f"weights from {weights}")
+        source = defmo_source(load_defmo(weights, device), config, f"weights from {weights}")
     elif has_weights(cache):
         try:
-            source = defmo_source(load_defmo(cache, device), f"weights from {cache}")
+            source = defmo_source(load_defmo(cache, device), config, f"weights from {cache}")
         except SfbError as exc:
             if mode == "defmo":
                 raise
             source = MaskSource("diff", f"{exc}; delete them and run with --masks defmo to download them again")
     elif mode == "defmo":
-        source = defmo_source(load_defmo(download_weights(), device), f"weights downloaded to {cache}")
+        source = defmo_source(load_defmo(download_weights(), device), config, f"weights downloaded to {cache}")
     else:
         source = MaskSource(
             "diff",

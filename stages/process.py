@@ -356,7 +356,7 @@ def process_clip(options: ProcessOptions, config: Config, device: torch.device, 
         raise SfbError(f"--object-diameter must be positive, got {options.object_diameter}")
     info = probe(options.video, config.video)
     camera = clip_camera(info, config, options.focal_px)
-    masks = choose_masks(options.masks, options.defmo_weights, device, log=None if quiet else print_line)
+    masks = choose_masks(options.masks, options.defmo_weights, config.crop, device, log=None if quiet else print_line)
     created = not options.out.exists()
     resumed = prepare_folder(options, config, masks)
     try:

@@ -12,7 +12,8 @@ from torch import nn
 
 from sfb_video import defmo
 from sfb_video.checks import SfbError
-from sfb_video.crop import Crop
+from sfb_video.config import CropConfig
+from sfb_video.crop import Crop, make_crop
 from sfb_video.geometry.camera import PinholeCamera
 
 
@@ -21,11 +22,16 @@ def network(defmo_weights: Path) -> DeFMO:
     return defmo.load_defmo(defmo_weights, torch.device("cpu"))
 
 
-def _crop(h: int, w: int, seed: int = 0) -> Crop:
-    g = torch.Generator().manual_seed(seed)
-    image, background = torch.rand(3, h, w, generator=g), torch.rand(3, h, w, generator=g)
-    camera = PinholeCamera.from_fov(w, h, 45.0)
-    return Crop((0, 0, w, h), camera, image, background, torch.ones(h, w))
+def _frame(height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:
+    # A smooth pattern: it survives resizing to 320x240 and back nearly unchanged.
+    ys, xs = torch.meshgrid(torch.linspace(0, 1, height), torch.linspace(0, 1, width), indexing="ij")
+    image = torch.stack((xs, ys, (xs + ys) / 2))
+    return image, image * 0.5
+
+
+def _crop(image: torch.Tensor, background: torch.Tensor, box: tuple[int, int, int, int]) -> Crop:
+    camera = PinholeCamera.from_fov(image.shape[2], image.shape[1], 45.0)
+    return make_crop(image, background, box, camera, CropConfig())
 
 
 class Echo(nn.Module):
@@ -55,28 +61,38 @@ def test_loaded_weights_are_the_saved_ones(defmo_weights: Path, network: DeFMO) 
         assert all(torch.equal(saved[k], loaded[k]) for k in saved)
 
 
-@pytest.mark.parametrize(("h", "w"), [(90, 120), (75, 100), (150, 200)])
-def test_masks_have_the_crop_size_and_one_per_subframe(network: DeFMO, h: int, w: int) -> None:
-    crop = _crop(h, w)
-    masks = defmo.defmo_masks(network, crop, 8)
-    assert masks.shape == (8, h, w)
+@pytest.mark.parametrize(
+    ("size", "box"),
+    [((240, 320), (140, 100, 30, 20)), ((240, 320), (0, 0, 40, 12)), ((480, 640), (100, 200, 260, 60))],
+)
+def test_masks_have_the_crop_size_and_one_per_subframe(
+    network: DeFMO, size: tuple[int, int], box: tuple[int, int, int, int]
+) -> None:
+    image, background = _frame(*size)
+    crop = _crop(image, background, box)
+    masks = defmo.defmo_masks(network, image, background, box, crop, 8, CropConfig())
+    assert masks.shape == (8, *crop.image.shape[1:])
     assert masks.dtype == torch.float32 and not masks.requires_grad
     assert float(masks.min()) >= 0 and float(masks.max()) <= 1
 
 
-def test_masks_are_defmo_alphas_at_320x240_mapped_back_onto_the_crop() -> None:
+@pytest.mark.parametrize("box", [(140, 100, 30, 20), (0, 0, 40, 12), (280, 200, 40, 40)])
+def test_masks_are_defmo_alphas_from_a_wider_window_mapped_back_onto_the_crop(box: tuple[int, int, int, int]) -> None:
     echo = Echo()
-    # A smooth pattern survives resizing to 320x240 and back nearly unchanged.
-    ys, xs = torch.meshgrid(torch.linspace(0, 1, 90), torch.linspace(0, 1, 120), indexing="ij")
-    crop = _crop(90, 120)
-    crop.image[0], crop.image[1] = xs, ys
-    masks = defmo.defmo_masks(echo, crop, 4)
-    assert echo.inputs[0].shape == (1, 6, 240, 320)
-    assert torch.allclose(echo.inputs[0][0, 3:].mean((1, 2)), crop.background.mean((1, 2)), atol=1e-2)
-    # Instants 0..11 (times up to 11/23 < 1/2) fill sub-frames 0 and 1, the rest 2 and 3.
+    image, background = _frame(240, 320)
+    crop = _crop(image, background, box)
+    masks = defmo.defmo_masks(echo, image, background, box, crop, 4, CropConfig())
+    (pair,) = echo.inputs
+    assert pair.shape == (1, 6, 240, 320)
+    assert torch.allclose(pair[0, 3:], pair[0, :3] * 0.5, atol=1e-6)  # the background, same window
+    # DeFMO sees more around the object than the crop holds (as the SfB reference crops for it).
+    seen, cropped = pair[0, 0], crop.image[0]
+    assert float(seen.max() - seen.min()) > 1.1 * float(cropped.max() - cropped.min())
+    # Instants 0..11 (times up to 11/23 < 1/2) fill sub-frames 0 and 1, the rest 2 and 3: each
+    # mask lands on the crop's own pixels.
     for k in range(4):
-        expected = xs if k < 2 else ys
-        assert (masks[k] - expected).abs().max() < 0.02
+        expected = crop.image[0] if k < 2 else crop.image[1]
+        assert (masks[k] - expected).abs().max() < 0.02, k
 
 
 def test_time_bins_average_every_instant_into_the_subframe_it_falls_in() -> None:

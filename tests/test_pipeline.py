@@ -152,7 +152,7 @@ def test_an_interrupted_run_resumes_from_the_last_finished_frame(run: Run, tmp_p
     camera = run.clip.camera
     with VideoReader(run.video) as reader:
         info = reader.info
-    masks = choose_masks("diff", None, CPU, log=None)
+    masks = choose_masks("diff", None, run.config.crop, CPU, log=None)
     prepare_folder(options, run.config, masks)
     with pytest.raises(KeyboardInterrupt):
         track_and_fit(options, run.config, info, camera, CPU, masks, stop_after_two)

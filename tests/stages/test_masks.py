@@ -10,8 +10,8 @@ import torch
 
 from sfb_video import defmo
 from sfb_video.checks import SfbError
-from sfb_video.config import load_config
-from sfb_video.crop import Crop
+from sfb_video.config import CropConfig, load_config
+from sfb_video.crop import Box, Crop
 from sfb_video.demo import demo_clip, demo_config
 from sfb_video.evaluation.synthetic import crop_masks
 from sfb_video.results import FrameResult
@@ -22,11 +22,12 @@ from stages.fit import fit_detection, join
 from stages.masks import MaskSource, choose_masks, mask_centroids, orient_masks
 
 CPU = torch.device("cpu")
+CROP = CropConfig()
 
 
 def test_auto_without_weights_falls_back_to_the_difference_image_saying_why_in_one_line() -> None:
     lines: list[str] = []
-    source = choose_masks("auto", None, CPU, log=lines.append)
+    source = choose_masks("auto", None, CROP, CPU, log=lines.append)
     assert source.name == "diff" and source.make is None
     assert len(lines) == 1 and "\n" not in lines[0]
     assert "difference image" in lines[0] and str(defmo.cache_dir()) in lines[0] and "--defmo-weights" in lines[0]
@@ -36,24 +37,24 @@ def test_auto_uses_defmo_with_weights_given_or_in_the_hub_cache(
     defmo_weights: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     lines: list[str] = []
-    given = choose_masks("auto", defmo_weights, CPU, log=lines.append)
+    given = choose_masks("auto", defmo_weights, CROP, CPU, log=lines.append)
     assert given.name == "defmo" and given.make is not None
     assert lines == [f"masks: DeFMO's sub-frame masks (L_S): weights from {defmo_weights}"]
     monkeypatch.setenv("TORCH_HOME", str(tmp_path))
     defmo.cache_dir().mkdir(parents=True)
     for name in defmo.WEIGHT_FILES.values():
         (defmo.cache_dir() / name).symlink_to(defmo_weights / name)
-    assert choose_masks("auto", None, CPU, log=None).name == "defmo"
+    assert choose_masks("auto", None, CROP, CPU, log=None).name == "defmo"
 
 
 def test_diff_never_loads_defmo_and_bad_weight_folders_are_errors(defmo_weights: Path, tmp_path: Path) -> None:
     lines: list[str] = []
-    assert choose_masks("diff", defmo_weights, CPU, log=lines.append).make is None
+    assert choose_masks("diff", defmo_weights, CROP, CPU, log=lines.append).make is None
     assert lines == ["masks: the difference image (L_D): asked for with --masks diff"]
     with pytest.raises(SfbError, match=r"no encoder_best\.pt and rendering_best\.pt"):
-        choose_masks("auto", tmp_path, CPU, log=None)
+        choose_masks("auto", tmp_path, CROP, CPU, log=None)
     with pytest.raises(SfbError, match="--masks must be one of"):
-        choose_masks("truth", None, CPU, log=None)
+        choose_masks("truth", None, CROP, CPU, log=None)
 
 
 def test_auto_falls_back_from_cached_weights_that_do_not_load(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -62,10 +63,10 @@ def test_auto_falls_back_from_cached_weights_that_do_not_load(tmp_path: Path, mo
     for name in defmo.WEIGHT_FILES.values():
         (defmo.cache_dir() / name).write_bytes(b"cut short by a failed download")
     lines: list[str] = []
-    assert choose_masks("auto", None, CPU, log=lines.append).name == "diff"
+    assert choose_masks("auto", None, CROP, CPU, log=lines.append).name == "diff"
     assert len(lines) == 1 and "cannot load the DeFMO weights" in lines[0] and "delete them" in lines[0]
     with pytest.raises(SfbError, match="cannot load the DeFMO weights"):
-        choose_masks("defmo", None, CPU, log=None)
+        choose_masks("defmo", None, CROP, CPU, log=None)
 
 
 @pytest.mark.filterwarnings("ignore:Transient failure")
@@ -73,7 +74,7 @@ def test_defmo_without_weights_downloads_and_fails_clearly_when_it_cannot(monkey
     for part, name in defmo.WEIGHT_FILES.items():
         monkeypatch.setitem(defmo.urls, f"defmo_{part}", f"http://127.0.0.1:9/{name}")
     with pytest.raises(SfbError, match="cannot download the DeFMO weights"):
-        choose_masks("defmo", None, CPU, log=None)
+        choose_masks("defmo", None, CROP, CPU, log=None)
 
 
 def _moving_masks(n: int = 4) -> torch.Tensor:
@@ -96,7 +97,7 @@ def test_fits_with_defmo_masks_use_the_silhouette_loss(defmo_weights: Path) -> N
     config = load_config("fast", ["fit.iterations=10"])
     config = demo_config(config)
     clip = demo_clip(config)
-    source = choose_masks("defmo", defmo_weights, CPU, log=None)
+    source = choose_masks("defmo", defmo_weights, CROP, CPU, log=None)
     result = fit_detection(_frame(clip, 0), _detection(clip, 0), clip.camera, config, None, CPU, source)
     assert result.mask_source == "defmo" and result.masks is not None
     assert result.masks.shape == (config.render.time_steps, *result_crop_size(result))
@@ -131,9 +132,9 @@ def test_the_order_between_frames_wins_over_the_order_the_masks_come_in() -> Non
     clip = demo_clip(config)
     turned = {0, 2}
 
-    def true_masks(index: int, crop: Crop, n: int) -> torch.Tensor:
-        masks = crop_masks(clip, index, crop)
-        return masks.flip(0) if index in turned else masks
+    def true_masks(frame: FrameWithBackground, box: Box, crop: Crop, n: int) -> torch.Tensor:
+        masks = crop_masks(clip, frame.index, crop)
+        return masks.flip(0) if frame.index in turned else masks
 
     source = MaskSource("truth", "the generator's", true_masks)
     results: list[FrameResult] = []
