@@ -140,10 +140,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
     box = _parse_box(args.box) or find_object_box(image, background, config.crop.detect_threshold)
     if box is None:
         raise NoObjectError(f"no object: {args.image} does not differ from its background")
-    crop = make_crop(image.to(device), background.to(device), box, camera, config.crop)
+    frame = FrameWithBackground(0, image.to(device), background.to(device))
+    crop = make_crop(frame.image, frame.background, box, camera, config.crop)
     out = Path(args.out or f"runs/{Path(args.image).stem}")
     folder = OutputFolder(out, args.overwrite)
-    frame = FrameWithBackground(0, image.to(device), background.to(device))
     masks = _mask_source(args, config, device).masks(frame, box, crop, config.render.time_steps)
     steps = config.fit.iterations * len(config.fit.prototypes)
     # disable=None: no bar when stderr is not a terminal (logs, CI).

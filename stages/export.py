@@ -158,8 +158,9 @@ def _fit_record(result: FrameResult, speed: float, diameter: float | None) -> di
         "speed_sizes_per_s": speed,
         "motion": motion_record(result.state.motion),
     }
-    if result.masks is not None:
-        record["masks_order"] = _mask_order(result)
+    order = _mask_order(result)
+    if order is not None:
+        record["masks_order"] = order
     if diameter is not None:
         record["speed_km_per_h"] = speed * diameter * 3.6
     return record
