@@ -9,7 +9,8 @@ frame) starts from a previous result and stops early on a plateau.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import torch
@@ -110,8 +111,9 @@ def _optimise(
 ) -> tuple[tuple[dict, dict] | None, dict[str, float], torch.Tensor | None, list[dict[str, float]]]:
     renderer = MeshRenderer(crop.camera, render_config)
     taus = exposure_times(render_config.time_steps, crop.image.device)
-    params = [p for p in (*shape.parameters(), *motion.parameters()) if p.requires_grad]
-    optimiser = torch.optim.Adam(params, lr=config.lr)
+    rotation = [p for p in (motion.quat0, motion.omega_raw) if p.requires_grad]
+    other = [p for p in (*shape.parameters(), motion.ends) if p.requires_grad]
+    optimiser = torch.optim.Adam([{"params": other}, {"params": rotation, "lr": config.lr_rotation}], lr=config.lr)
     best: tuple[dict, dict] | None = None  # state dicts of shape and motion
     best_record: dict[str, float] = {"image": float("inf")}
     best_render: torch.Tensor | None = None
@@ -145,6 +147,27 @@ def _oriented(streak: Streak, motion: Motion, crop: Crop) -> Streak:
     if float((streak.end - start_uv).norm()) < float((streak.start - start_uv).norm()):
         return Streak(streak.end, streak.start, streak.diameter)
     return streak
+
+
+@contextmanager
+def _deterministic(device: torch.device) -> Iterator[None]:
+    """Serial CPU kernels while fitting, restoring the caller's setting after.
+
+    The backward of every gather is index_put_ with accumulation, which torch runs on several
+    threads with atomic float adds, in whatever order the threads get there: on a busy machine
+    the same fit came out different in the fourth decimal. The deterministic kernels cost no
+    measurable time here. CUDA is left alone (some of its kernels would only warn).
+    """
+    if device.type != "cpu":
+        yield
+        return
+    previous = torch.are_deterministic_algorithms_enabled()
+    warn_only = torch.is_deterministic_algorithms_warn_only_enabled()
+    torch.use_deterministic_algorithms(True)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(previous, warn_only=warn_only)
 
 
 def _check_crop(crop: Crop) -> None:
@@ -210,9 +233,10 @@ def fit_frame(
         else:
             motion.start_at_streak(streak_from_mask(crop.object_mask))
         iterations = config.warm_iterations if warm is not None else config.iterations
-        params, record, rendered, curve = _optimise(
-            crop, shape, motion, iterations, warm is not None, masks, config, render_config, on_step
-        )
+        with _deterministic(device):
+            params, record, rendered, curve = _optimise(
+                crop, shape, motion, iterations, warm is not None, masks, config, render_config, on_step
+            )
         curves[name] = curve
         if params is not None and (best is None or record["image"] < best[0]):
             best = (record["image"], name, params, record, rendered, shape, motion)

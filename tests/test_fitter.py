@@ -1,8 +1,8 @@
 """The fitter on generated frames with ground truth (fast preset, 160x120 frames).
 
 Thresholds come from measurement (see benchmarks/fit.py for the full-size table): on these
-four frames the full loss reached mean TIoU 0.76, PSNR 28.8 dB and translation error 0.43
-object sizes; with L_I switched off PSNR fell to 25.5 dB and the error rose to 1.45, which the
+four frames the full loss reached mean TIoU 0.82, PSNR 30.0 dB and translation error 0.48
+object sizes; with L_I switched off PSNR fell to 25.4 dB and the error rose to 1.55, which the
 thresholds below must and do catch.
 """
 
@@ -23,7 +23,7 @@ from sfb_video.model.motion import Motion
 from sfb_video.synth import ClipSpec, generate_clip
 
 FRAMES = (("ball", 0), ("box", 0), ("ball", 2), ("box", 2))
-MIN_TIOU, MIN_PSNR, MAX_TRANSLATION = 0.72, 27.5, 0.6
+MIN_TIOU, MIN_PSNR, MAX_TRANSLATION = 0.78, 28.5, 0.6
 
 
 def _clip(shape: str, seed: int):
@@ -55,21 +55,25 @@ def test_thresholds_catch_a_fit_without_the_image_loss() -> None:
 
 
 def test_true_subframe_masks_fit_better_than_the_difference_mask(full: dict[str, float]) -> None:
-    # Stands in for DeFMO's masks (paper, Table 2: L_S beats L_D); measured 0.87 vs 0.76.
+    # Stands in for DeFMO's masks (paper, Table 2: L_S beats L_D); measured TIoU 0.84 vs 0.82
+    # and PSNR 32.6 vs 30.0 dB.
     with_masks = _means([], use_true_masks=True)
-    assert with_masks["tiou"] >= full["tiou"] + 0.05
+    assert with_masks["tiou"] >= full["tiou"]
+    assert with_masks["psnr"] >= full["psnr"] + 1.5
 
 
 @pytest.mark.parametrize("reverse", [False, True])
 def test_warm_start_takes_its_direction_from_the_prediction_and_its_place_from_the_streak(reverse: bool) -> None:
     config = load_config("fast")
-    # The ball, which the sphere prototype can match, warm-started from the cold fit's shape and
-    # the true motion (or the true motion reversed): the fit runs in the predicted direction.
+    # The ball, which the sphere prototype can match, warm-started from the cold fit's shape,
+    # texture and rotation (which belong together, as a previous frame's do) and the true path
+    # (or the true path reversed): the fit runs in the predicted direction.
     clip = _clip("ball", 0)
     crop = synthetic_crop(clip, 0, config)
     truth = clip.truth[0].motion
-    motion = Motion(*(torch.from_numpy(a).float() for a in (truth.x0, truth.dx, truth.rotation, truth.omega)))
     cold, _ = fit_synthetic_frame(clip, 0, config)
+    path = (torch.from_numpy(a).float() for a in (truth.x0, truth.dx))
+    motion = Motion(*path, cold.state.motion.rot0, cold.state.motion.omega)
     start = motion.reversed() if reverse else motion
     warm = fit_frame(
         crop, config.fit, config.render, warm=WarmStart("sphere", cold.state.vertices, cold.state.texture, start)
@@ -77,8 +81,8 @@ def test_warm_start_takes_its_direction_from_the_prediction_and_its_place_from_t
     score = score_fit(warm, clip, 0, config)
     assert warm.iterations <= config.fit.warm_iterations
     assert score.flipped == reverse
-    assert score.translation_err <= 0.5  # measured 0.38 either way
-    assert score.tiou >= 0.72  # measured 0.82 and 0.77 (cold: 0.75)
+    assert score.translation_err <= 0.5  # measured 0.40 either way
+    assert score.tiou >= 0.72  # measured 0.89 and 0.81 (cold: 0.89)
 
 
 def test_fit_is_deterministic() -> None:
@@ -89,6 +93,31 @@ def test_fit_is_deterministic() -> None:
     assert torch.equal(a.state.vertices, b.state.vertices)
     assert torch.equal(a.state.motion.x0, b.state.motion.x0)
     assert a.curves == b.curves
+
+
+def test_rotations_take_their_own_step_size() -> None:
+    crop = synthetic_crop(_clip("box", 0), 0, load_config("fast"))
+    frozen = load_config("fast", ["fit.iterations=20", "fit.lr_rotation=0"])
+    fit = fit_frame(crop, frozen.fit, frozen.render)
+    assert torch.equal(fit.state.motion.rot0, torch.eye(3)) and torch.equal(fit.state.motion.omega, torch.zeros(3))
+    assert fit.iterations == 20 and fit.losses["image"] < fit.curves["sphere"][0]["image"]
+    moving = load_config("fast", ["fit.iterations=20"])
+    assert float(fit_frame(crop, moving.fit, moving.render).state.motion.omega.norm()) > 0
+
+
+def test_the_fit_runs_deterministic_kernels_and_restores_the_setting_after() -> None:
+    # A busy machine made the parallel index_put_ add in another order (fourth decimal of a fit);
+    # that needs load to show, so this checks the switch that prevents it.
+    config = load_config("fast", ["fit.iterations=3"])
+    seen: list[bool] = []
+    fit_frame(
+        synthetic_crop(_clip("ball", 0), 0, config),
+        config.fit,
+        config.render,
+        on_step=lambda step, record: seen.append(torch.are_deterministic_algorithms_enabled()),
+    )
+    assert seen == [True] * 3
+    assert not torch.are_deterministic_algorithms_enabled()
 
 
 def test_loss_curve_is_reported_and_the_kept_fit_is_the_best_seen() -> None:

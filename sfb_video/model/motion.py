@@ -99,8 +99,10 @@ def streak_from_mask(mask: torch.Tensor) -> Streak:
 def cap_rotation(raw: torch.Tensor, max_angle: float) -> torch.Tensor:
     """Map (3,) unconstrained ``raw`` to an axis-angle of norm < ``max_angle``, smoothly.
 
-    Small vectors pass unchanged (the map's derivative at 0 is the identity).
+    Small vectors pass unchanged (the map's derivative at 0 is the identity); a cap of 0 gives 0.
     """
+    if max_angle == 0:
+        return torch.zeros_like(raw)
     norm = raw.square().sum().add(1e-12).sqrt()
     return raw * (max_angle * torch.tanh(norm / max_angle) / norm)
 
@@ -135,7 +137,7 @@ class MotionParams(torch.nn.Module):
         # end's size ratio (through tanh). Both start at the crop centre, at the same size.
         self.ends = torch.nn.Parameter(torch.tensor([[0.0, 0.0, math.log(s / (1 - s))], [0.0, 0.0, 0.0]]))
         self.quat0 = torch.nn.Parameter(torch.tensor([1.0, 0.0, 0.0, 0.0]))
-        self.omega_raw = torch.nn.Parameter(torch.zeros(3))
+        self.omega_raw = torch.nn.Parameter(torch.zeros(3), requires_grad=self.max_angle > 0)
 
     def positions(self) -> torch.Tensor:
         """(2, 3) camera-space centre of mass at the start and the end of the exposure."""
@@ -190,6 +192,8 @@ class MotionParams(torch.nn.Module):
             size = torch.stack((torch.logit(frac), torch.atanh(ratio)))
             self.ends.copy_(torch.cat((self._raw_position(uv), size[:, None]), -1))
             self.quat0.copy_(axis_angle_to_quaternion(matrix_to_axis_angle(motion.rot0.to(self.quat0))))
+            if self.max_angle == 0:
+                return
             omega = motion.omega.to(self.omega_raw)
             norm = omega.norm().clamp(max=self.max_angle * 0.999)
             scale = torch.atanh(norm / self.max_angle) * self.max_angle / norm.clamp_min(1e-12)

@@ -79,3 +79,13 @@ def test_streak_of_a_still_disc_has_the_disc_diameter() -> None:
     streak = streak_from_mask(mask)
     assert streak.diameter == pytest.approx(30, rel=0.05)
     assert (streak.end - streak.start).norm() <= 2.0
+
+
+def test_a_zero_rotation_cap_fits_no_rotation() -> None:
+    params = MotionParams(CAMERA, (0.05, 1.0), 1.5, 0.0, 0.4)
+    assert not params.omega_raw.requires_grad
+    x0 = CAMERA.unproject(torch.tensor([80.0, 60.0]), torch.tensor(5.0))
+    params.load_motion(Motion(x0, torch.ones(3), torch.eye(3), torch.ones(3)))
+    assert torch.equal(params.motion().omega, torch.zeros(3))
+    rotations, _ = params(torch.tensor([0.0, 1.0]))
+    assert torch.equal(rotations[0], rotations[1])
