@@ -111,9 +111,13 @@ def _optimise(
 ) -> tuple[tuple[dict, dict] | None, dict[str, float], torch.Tensor | None, list[dict[str, float]]]:
     renderer = MeshRenderer(crop.camera, render_config)
     taus = exposure_times(render_config.time_steps, crop.image.device)
-    rotation = [p for p in (motion.quat0, motion.omega_raw) if p.requires_grad]
-    other = [p for p in (*shape.parameters(), motion.ends) if p.requires_grad]
-    optimiser = torch.optim.Adam([{"params": other}, {"params": rotation, "lr": config.lr_rotation}], lr=config.lr)
+    rotation = (motion.quat0, motion.omega_raw)
+    trained = [p for p in (*shape.parameters(), *motion.parameters()) if p.requires_grad]
+    groups = [
+        {"params": [p for p in trained if all(p is not r for r in rotation)]},
+        {"params": [p for p in trained if any(p is r for r in rotation)], "lr": config.lr_rotation},
+    ]
+    optimiser = torch.optim.Adam(groups, lr=config.lr)
     best: tuple[dict, dict] | None = None  # state dicts of shape and motion
     best_record: dict[str, float] = {"image": float("inf")}
     best_render: torch.Tensor | None = None
