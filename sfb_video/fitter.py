@@ -75,7 +75,9 @@ def _joint_loss(
     taus: torch.Tensor,
     masks: torch.Tensor | None,
     config: FitConfig,
+    progress: float,
 ) -> tuple[torch.Tensor, dict[str, float], torch.Tensor]:
+    """The weighted loss at ``progress``, the fraction of the fit's iterations done (L_D fades)."""
     rotations, positions = motion(taus)
     vertices = shape.vertices()
     out = renderer(pose_vertices(vertices, rotations, positions), shape.topology, shape.texture())
@@ -91,7 +93,7 @@ def _joint_loss(
         weights["silhouette"] = config.w_silhouette
     else:
         terms["difference"] = losses.difference_loss(crop.object_mask, out.alpha)
-        weights["difference"] = config.w_difference
+        weights["difference"] = config.w_difference * max(0.0, 1 - progress / config.difference_fade)
     total = sum(weights[k] * v for k, v in terms.items() if weights[k] != 0)
     record = {k: float(v.detach()) for k, v in terms.items()}
     record["total"] = float(total.detach())
@@ -125,7 +127,7 @@ def _optimise(
     since_improved = 0
     for step in range(iterations):
         optimiser.zero_grad(set_to_none=True)
-        total, record, rendered = _joint_loss(crop, shape, motion, renderer, taus, masks, config)
+        total, record, rendered = _joint_loss(crop, shape, motion, renderer, taus, masks, config, step / iterations)
         if not torch.isfinite(total):
             break  # keep the best parameters seen; a NaN step would only spoil them
         curve.append(record)
@@ -216,15 +218,16 @@ def fit_frame(
     best: tuple[float, str, tuple[dict, dict], dict[str, float], torch.Tensor, ShapeParams, MotionParams] | None
     best = None
     curves: dict[str, list[dict[str, float]]] = {}
+    learnt = (config.deform, config.learn_texture)
     for name in names:
         proto, topology = load_prototype(name)
         topology = topology.to(device)
         if warm is not None:
-            shape = ShapeParams(warm.vertices.to(device), topology, warm.texture.shape[-1], config.deform).to(device)
+            shape = ShapeParams(warm.vertices.to(device), topology, warm.texture.shape[-1], *learnt).to(device)
             with torch.no_grad():
                 shape.texture_logits.copy_(torch.logit(warm.texture.to(device).clamp(1e-4, 1 - 1e-4)))
         else:
-            shape = ShapeParams(proto.to(device), topology, config.texture_size, config.deform).to(device)
+            shape = ShapeParams(proto.to(device), topology, config.texture_size, *learnt).to(device)
         motion = MotionParams(
             crop.camera, config.size_range, config.max_size_ratio, config.max_rotation_deg, config.init_size
         ).to(device)

@@ -33,6 +33,7 @@ def test_dotted_overrides_are_typed() -> None:
         ("demo.size_px=[1, 2, 3]", "list of 2 values"),
         ("render", "must look like"),
         ("fit.prototypes=[]", "non-empty list"),
+        ("fit.difference_fade=0", "fit.difference_fade must be positive"),
     ],
 )
 def test_bad_overrides_name_the_problem(override: str, message: str) -> None:

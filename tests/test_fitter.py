@@ -1,8 +1,8 @@
 """The fitter on generated frames with ground truth (fast preset, 160x120 frames).
 
 Thresholds come from measurement (see benchmarks/fit.py for the full-size table): on these
-four frames the full loss reached mean TIoU 0.82, PSNR 30.0 dB and translation error 0.48
-object sizes; with L_I switched off PSNR fell to 25.4 dB and the error rose to 1.55, which the
+four frames the full loss reached mean TIoU 0.84, PSNR 31.1 dB and translation error 0.43
+object sizes; with L_I switched off PSNR fell to 25.7 dB and the error rose to 1.55, which the
 thresholds below must and do catch.
 """
 
@@ -19,11 +19,12 @@ from sfb_video.crop import make_crop
 from sfb_video.evaluation.synthetic import FrameScore, crop_masks, fit_synthetic_frame, score_fit, synthetic_crop
 from sfb_video.fitter import NoObjectError, WarmStart, fit_frame
 from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.geometry.rotation import axis_angle_to_matrix
 from sfb_video.model.motion import Motion
 from sfb_video.synth import ClipSpec, generate_clip
 
 FRAMES = (("ball", 0), ("box", 0), ("ball", 2), ("box", 2))
-MIN_TIOU, MIN_PSNR, MAX_TRANSLATION = 0.78, 28.5, 0.6
+MIN_TIOU, MIN_PSNR, MAX_TRANSLATION = 0.8, 29.5, 0.55
 
 
 def _clip(shape: str, seed: int):
@@ -55,11 +56,11 @@ def test_thresholds_catch_a_fit_without_the_image_loss() -> None:
 
 
 def test_true_subframe_masks_fit_better_than_the_difference_mask(full: dict[str, float]) -> None:
-    # Stands in for DeFMO's masks (paper, Table 2: L_S beats L_D); measured TIoU 0.84 vs 0.82
-    # and PSNR 32.6 vs 30.0 dB.
+    # Stands in for DeFMO's masks (paper, Table 2: L_S beats L_D); measured PSNR 32.6 vs 31.1 dB
+    # and TIoU 0.842 vs 0.841 (since L_D fades out, the difference mask no longer costs TIoU here).
     with_masks = _means([], use_true_masks=True)
-    assert with_masks["tiou"] >= full["tiou"]
-    assert with_masks["psnr"] >= full["psnr"] + 1.5
+    assert with_masks["psnr"] >= full["psnr"] + 1.0
+    assert with_masks["tiou"] >= full["tiou"] - 0.01
 
 
 @pytest.mark.parametrize("reverse", [False, True])
@@ -81,8 +82,30 @@ def test_warm_start_takes_its_direction_from_the_prediction_and_its_place_from_t
     score = score_fit(warm, clip, 0, config)
     assert warm.iterations <= config.fit.warm_iterations
     assert score.flipped == reverse
-    assert score.translation_err <= 0.5  # measured 0.40 either way
-    assert score.tiou >= 0.72  # measured 0.89 and 0.81 (cold: 0.89)
+    assert score.translation_err <= 0.7  # measured 0.51 and 0.62
+    assert score.tiou >= 0.65  # measured 0.83 and 0.73 (cold: 0.94)
+
+
+def test_with_the_objects_appearance_known_the_fit_recovers_its_rotation() -> None:
+    # One frame cannot tell the rotation from a texture that is free to change (the README's fit
+    # section has the evidence); given the true mesh and texture, only the motion is fitted, from
+    # no rotation and a start orientation 27 degrees off. T = 32 because eight time steps bias
+    # it (measured 9.5 degrees here, 4.5 with 300 steps, 13 with T = 16); a fit of no rotation
+    # errs by the whole 86 degrees, and so would one without L_I (a sphere's silhouette has none).
+    config = load_config("default", ["fit.deform=false", "fit.learn_texture=false", "render.time_steps=32"])
+    clip = generate_clip(ClipSpec(shape="ball", seed=0))
+    truth, mesh = clip.truth[0].motion, clip.scene.mesh
+    as_tensor = lambda a: torch.from_numpy(a).float()  # noqa: E731
+    rot0 = axis_angle_to_matrix(torch.tensor([0.3, -0.3, 0.2])) @ as_tensor(truth.rotation)
+    start = Motion(as_tensor(truth.x0), as_tensor(truth.dx), rot0, torch.zeros(3))
+    texture = torch.from_numpy(mesh.texture).permute(2, 0, 1).float() / 255
+    warm = WarmStart("sphere", mesh.vertices, texture, start)
+    fit = fit_frame(synthetic_crop(clip, 0, config), config.fit, config.render, warm=warm)
+    score = score_fit(fit, clip, 0, config)
+    assert torch.allclose(fit.state.vertices, mesh.vertices, atol=1e-6)
+    assert torch.allclose(fit.state.texture, texture, atol=1e-3)
+    assert score.rotation_err_deg <= 15.0
+    assert score.translation_err <= 0.4  # measured 0.22
 
 
 def test_fit_is_deterministic() -> None:
@@ -103,6 +126,21 @@ def test_rotations_take_their_own_step_size() -> None:
     assert fit.iterations == 20 and fit.losses["image"] < fit.curves["sphere"][0]["image"]
     moving = load_config("fast", ["fit.iterations=20"])
     assert float(fit_frame(crop, moving.fit, moving.render).state.motion.omega.norm()) > 0
+
+
+def test_the_difference_loss_fades_out_over_the_stated_fraction_of_the_iterations() -> None:
+    config = load_config("fast", ["fit.iterations=8", "fit.difference_fade=0.5"])
+    fit = fit_frame(synthetic_crop(_clip("box", 0), 0, config), config.fit, config.render)
+    weights = config.fit
+    for step, record in enumerate(fit.curves["sphere"]):
+        rest = (
+            weights.w_image * record["image"]
+            + weights.w_texture * record["texture"]
+            + weights.w_laplacian * record["laplacian"]
+        )
+        fade = max(0.0, 1 - step / 4)
+        assert record["total"] == pytest.approx(rest + weights.w_difference * fade * record["difference"], rel=1e-5)
+        assert (record["total"] > rest * (1 + 1e-3)) == (step < 4)
 
 
 def test_the_fit_runs_deterministic_kernels_and_restores_the_setting_after() -> None:

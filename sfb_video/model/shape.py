@@ -20,14 +20,23 @@ class ShapeParams(torch.nn.Module):
         topology: the prototype's faces, UVs and edges.
         texture_size: side of the square texture map.
         deform: whether the vertex offsets are optimised (the reference also fits without).
+        learn_texture: whether the texture is optimised.
     """
 
-    def __init__(self, prototype: torch.Tensor, topology: MeshTopology, texture_size: int, deform: bool) -> None:
+    def __init__(
+        self,
+        prototype: torch.Tensor,
+        topology: MeshTopology,
+        texture_size: int,
+        deform: bool,
+        learn_texture: bool = True,
+    ) -> None:
         super().__init__()
         self.topology = topology
         self.register_buffer("prototype", prototype.clone())
         self.offsets = torch.nn.Parameter(torch.zeros_like(prototype), requires_grad=deform)
-        self.texture_logits = torch.nn.Parameter(torch.zeros(3, texture_size, texture_size))
+        texture = torch.zeros(3, texture_size, texture_size)
+        self.texture_logits = torch.nn.Parameter(texture, requires_grad=learn_texture)
 
     def vertices(self) -> torch.Tensor:
         """(V, 3) current vertices at unit scale."""
