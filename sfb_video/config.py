@@ -1,195 +1,268 @@
-"""Typed configuration: one dataclass per part, YAML presets in ``configs/`` fill them in.
+"""Typed configuration: one dataclass per part; YAML presets fill them in.
 
 A preset is a YAML file whose top-level keys name the sections below; anything left out keeps
-its default. Overrides use dotted keys (``render.sigma_inv=3000``). The resolved config is
-written into every run folder so that a run can be replayed.
+its default. The presets ``default`` and ``fast`` ship inside the package (the repository's
+``configs/`` folder is that package, ``sfb_video.configs``); any other YAML file can be given by
+its path. Overrides use dotted keys (``render.sigma_inv=3000``). The resolved config is written
+into every output folder so that a run can be replayed.
+
+Every number has its valid range next to its default (:func:`bounded`), checked whenever a
+config is built, so a bad value is refused with the field's name before any work starts. Why
+each default has the value it has, measured, is in ``benchmarks/RESULTS.md``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
+import math
 import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import yaml
 
+from sfb_video.atomic import atomic_write_bytes
 from sfb_video.checks import ConfigError
-from sfb_video.imageio import atomic_write_bytes
+from sfb_video.geometry.prototypes import PROTOTYPE_NAMES
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+PRESETS = "sfb_video.configs"
+"""The package that holds the named presets (``<name>.yaml``)."""
+
+
+def bounded(default: Any, *, ge: float | None = None, gt: float | None = None, le: float | None = None) -> Any:
+    """A numeric field (or tuple of numbers) whose every value must be >= ``ge``, > ``gt``, <= ``le``."""
+    return field(default=default, metadata={"ge": ge, "gt": gt, "le": le})
+
+
+def one_of(default: Any, choices: tuple[str, ...]) -> Any:
+    """A text field (or tuple of texts) whose every value must be one of ``choices``."""
+    return field(default=default, metadata={"choices": choices})
+
+
+class _Checked:
+    """Checks every field's range or choices when the section is built (also by ``replace``)."""
+
+    SECTION: ClassVar[str] = ""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            value = getattr(self, f.name)
+            values = value if isinstance(value, tuple) else (value,)
+            where = f"{self.SECTION}.{f.name}"
+            if "choices" in f.metadata:
+                bad = [v for v in values if v not in f.metadata["choices"]]
+                if bad:
+                    raise ConfigError(f"{where} must be one of {', '.join(f.metadata['choices'])}; got {bad[0]!r}")
+            for v in values if {"ge", "gt", "le"} & set(f.metadata) else ():
+                ge, gt, le = f.metadata["ge"], f.metadata["gt"], f.metadata["le"]
+                if not math.isfinite(v):
+                    raise ConfigError(f"{where} must be a finite number, got {v}")
+                if (ge is not None and v < ge) or (gt is not None and v <= gt) or (le is not None and v > le):
+                    rules = [f"{op} {b:g}" for op, b in ((">=", ge), (">", gt), ("<=", le)) if b is not None]
+                    raise ConfigError(f"{where} must be {' and '.join(rules)}, got {value}")
 
 
 @dataclass(frozen=True)
-class CameraConfig:
+class CameraConfig(_Checked):
     """The one pinhole camera of a clip."""
 
-    fov_y_deg: float = 45.0
-    """Vertical field of view in degrees (the SfB reference uses 45)."""
+    SECTION: ClassVar[str] = "camera"
+
+    fov_y_deg: float = bounded(45.0, gt=0, le=179)
+    """Vertical field of view in degrees, when the focal length is not given. 45 as in the SfB
+    reference; only depth and speed in object sizes depend on it."""
 
 
 @dataclass(frozen=True)
-class RenderConfig:
-    """The differentiable rasteriser and its soft silhouette."""
+class RenderConfig(_Checked):
+    """The differentiable rasteriser, its soft silhouette and the exposure's discretisation."""
 
-    sigma_inv: float = 7000.0
+    SECTION: ClassVar[str] = "render"
+
+    sigma_inv: float = bounded(7000.0, gt=0)
     """Sharpness of the soft silhouette: coverage outside is exp(-sigma_inv * d^2) at distance d
-    in normalised image units (half the longer side is 1). The paper uses 7000 (DIB-R)."""
-    band_eps: float = 1e-4
-    """Coverage below this is treated as zero; it sets the width of the band where it is computed."""
-    near: float = 1e-2
+    in normalised image units (half the longer side is 1). 7000 as in the paper (DIB-R)."""
+    band_eps: float = bounded(1e-4, gt=0, le=0.5)
+    """Coverage below this counts as zero; it sets the width of the band where coverage is computed."""
+    near: float = bounded(1e-2, gt=0)
     """Near plane in object sizes: geometry closer to the camera is an error."""
-    time_steps: int = 8
-    """T, the number of poses that discretise one exposure (paper: 8)."""
+    time_steps: int = bounded(8, ge=1)
+    """T, the poses that discretise one exposure in a fit (paper: 8)."""
+    steps_per_subframe: int = bounded(4, ge=1)
+    """Poses averaged into each rendered TSR sub-frame: enough for the blur within 1/N of an exposure."""
+    max_batch_pixels: int = bounded(2_000_000, ge=1)
+    """Outside the fit (exports, TSR), poses are rendered in batches of at most this many pixels
+    in all (H x W x poses): the renderer's buffers grow with them."""
+    export_max_width: int = bounded(400, ge=16)
+    """Exports render a crop box at most this wide and scale it up to the frame. The fit saw the
+    crop at most ``crop.max_width`` wide and the soft silhouette's width scales with the image,
+    so rendering wider adds no detail, only time and memory (a 4K frame's crop is ~1000 px)."""
 
 
 @dataclass(frozen=True)
-class CropConfig:
+class CropConfig(_Checked):
     """How a detection box becomes the crop a fit renders in."""
 
-    margin: float = 0.5
-    """Growth on each side, as a fraction of the box's shorter side (about one object radius)."""
-    aspect: float = 4 / 3
+    SECTION: ClassVar[str] = "crop"
+
+    margin: float = bounded(0.5, ge=0)
+    """Growth on each side, as a fraction of the box's shorter side: about one object radius."""
+    aspect: float = bounded(4 / 3, gt=0)
     """Width / height of the crop (the paper's 320x240)."""
-    max_width: int = 200
-    """Crops wider than this are downsampled to it; smaller ones keep their native resolution."""
-    detect_threshold: float = 0.05
-    """sum_rgb |I - B| above this, largest blob, is the object region (as the SfB reference
-    detects it). It finds the box, starts the motion, normalises L_I and is the mask D of L_D:
-    the paper's D, ||I - B||_2 > 0.1, misses faint parts of a streak and so rewards shrinking
-    (on 6 generated frames: TIoU 0.57 with it, 0.73 with this one)."""
-    defmo_margin: float = 1.0
+    max_width: int = bounded(200, ge=16)
+    """Crops wider than this are downsampled to it; smaller ones keep their native resolution:
+    rendering cost grows with pixels, and upsampling adds none."""
+    region_threshold: float = bounded(0.05, gt=0, le=3)
+    """The object region of a crop is the largest blob of sum over RGB of |I - B| above this (the
+    SfB reference's test). It finds the box of ``sfb-video fit``, starts the motion, normalises
+    L_I and is the mask D of L_D. Not the detector's test (``detect.threshold``, on the L2 norm):
+    this one is looser, because a mask that misses a streak's faint parts rewards shrinking."""
+    defmo_margin: float = bounded(1.0, ge=0)
     """Growth on each side of the window DeFMO sees, as a fraction of the box's shorter side: two
-    object radii, as the SfB reference crops for DeFMO (twice the fit's own margin)."""
+    object radii, as the SfB reference crops for DeFMO."""
 
 
 @dataclass(frozen=True)
-class FitConfig:
+class FitConfig(_Checked):
     """Test-time optimisation of one blurred frame (paper, Sec. 3.2)."""
 
-    prototypes: tuple[str, ...] = ("sphere",)
-    """Tried in turn from a cold start; the lowest image loss wins."""
+    SECTION: ClassVar[str] = "fit"
+
+    prototypes: tuple[str, ...] = one_of(("sphere",), PROTOTYPE_NAMES)
+    """Tried in turn from a cold start; the lowest image loss wins. One: more did not pay on
+    single frames (lowest L_I does not pick the best prototype) and cost their number in time."""
     deform: bool = True
     """Optimise per-vertex offsets (off: the prototype keeps its shape)."""
     learn_texture: bool = True
-    """Optimise the texture (off: it keeps its start, grey or a warm start's). With ``deform`` off
-    and a warm start from a known object's mesh and texture, only the motion is fitted: then its
-    rotation is recovered, which one frame cannot tell apart from a texture that is free."""
-    iterations: int = 500
-    """Adam steps of a cold start."""
-    warm_iterations: int = 150
+    """Optimise the texture (off: it keeps its start). With ``deform`` off and a warm start from
+    a known object's mesh and texture, only the motion is fitted, and then its rotation is
+    recovered, which one frame cannot tell apart from a free texture."""
+    iterations: int = bounded(500, ge=1)
+    """Adam steps of a cold start (paper: 500)."""
+    warm_iterations: int = bounded(150, ge=1)
     """At most this many steps when starting from a previous frame's result."""
-    lr: float = 0.1
+    lr: float = bounded(0.1, gt=0)
     """Adam's step size for the shape, texture and translation (paper: 0.1)."""
-    lr_rotation: float = 0.02
-    """Adam's step size for the rotations R0 and omega. At 0.1 they wander on a loss that hardly
-    tells rotations apart, and the texture and silhouette chase them: on ten generated frames TIoU
-    was 0.49 with 0.1, 0.56 with 0.02 and 0.54 with 0.01 (benchmarks.fit frames, seeds 1-2)."""
-    plateau_patience: int = 40
+    lr_rotation: float = bounded(0.02, ge=0)
+    """Adam's step size for the rotations R0 and omega. Smaller than ``lr``: the image loss
+    hardly tells rotations apart, and at 0.1 they wander and the texture chases them."""
+    plateau_patience: int = bounded(40, ge=1)
     """Stop when the best image loss has not improved for this many steps ..."""
-    plateau_tolerance: float = 1e-3
+    plateau_tolerance: float = bounded(1e-3, ge=0)
     """... by more than this fraction."""
-    texture_size: int = 100
-    size_range: tuple[float, float] = (0.05, 1.0)
+    texture_size: int = bounded(100, ge=2)
+    """Side of the square texture map in texels (paper: 100)."""
+    size_range: tuple[float, float] = bounded((0.05, 1.0), gt=0, le=1)
     """Apparent diameter bounds at the start, as fractions of the crop height (paper: 5% to 100%)."""
-    max_size_ratio: float = 1.5
-    """Bound on how much the apparent size may change within one exposure (end / start)."""
-    init_size: float = 0.4
+    max_size_ratio: float = bounded(1.5, ge=1)
+    """Bound on how much the apparent size may change within one exposure (end / start): without
+    it a fit can fade an unexplained streak out by sending one end far away."""
+    init_size: float = bounded(0.4, gt=0, le=1)
     """Initial apparent diameter, as a fraction of the crop height."""
-    max_rotation_deg: float = 120.0
+    max_rotation_deg: float = bounded(120.0, ge=0, le=180)
     """Cap on the rotation during one exposure (paper: 120 degrees); 0 fits no rotation."""
-    w_image: float = 1.0
+    w_image: float = bounded(1.0, ge=0)
     """Weight of L_I, the L1 reconstruction loss."""
-    w_silhouette: float = 1.0
+    w_silhouette: float = bounded(1.0, ge=0)
     """Weight of L_S, the IoU with given sub-frame masks (used only when masks are given)."""
-    w_difference: float = 0.3
+    w_difference: float = bounded(0.3, ge=0)
     """Weight of L_D, the IoU of the swept silhouette with the object mask (used without masks).
-    Below the paper's 1: with the streak start it pulls shapes a prototype cannot take (pens,
-    keys) towards the mask at the expense of L_I; on 5 generated shapes weight 1 gave TIoU 0.57,
-    0.3 gave 0.61 and 0 gave 0.69 but let depth drift (translation error 0.71, 0.66, 2.55)."""
-    difference_fade: float = 0.8
-    """L_D's weight falls linearly from ``w_difference`` at the first step to 0 at this fraction
-    of the iterations, and stays 0 after. D thresholds |I - B|, so it places the streak well but
-    misses its faint parts, which a thin, turning object (a pen) leaves everywhere: held to the
-    end it fattens the object. Fading it lets L_I shape the object once it is in place (15
-    generated frames: TIoU 0.60 -> 0.63; the seed-0 pen 0.55 -> 0.96). A large value keeps it."""
-    w_texture: float = 1.0
+    Below the paper's 1: with the streak's start it pulls shapes a prototype cannot take (pens,
+    keys) towards the mask at the expense of L_I; at 0 depth drifts."""
+    difference_fade: float = bounded(0.8, gt=0)
+    """L_D's weight falls linearly from ``w_difference`` to 0 at this fraction of the steps. D
+    thresholds |I - B|: it places the streak well but misses the faint parts a thin, turning
+    object leaves, and held to the end it fattens the object. Above 1 it never reaches 0."""
+    w_texture: float = bounded(1.0, ge=0)
     """Weight of L_T, the texture's total variation."""
-    w_laplacian: float = 1000.0
-    """Weight of L_L, the Laplacian smoothness of the vertices (paper: 1000)."""
-    seed: int = 0
+    w_laplacian: float = bounded(1000.0, ge=0)
+    """Weight of L_L, the Laplacian smoothness of the vertices (paper: 1000): it also keeps
+    depth stable and the mesh cheap to render."""
+    seed: int = bounded(0, ge=0)
+    """Seed of the fit's random initialisation."""
 
     def __post_init__(self) -> None:
-        if not self.difference_fade > 0:
-            raise ConfigError(f"fit.difference_fade must be positive, got {self.difference_fade}")
+        super().__post_init__()
+        if self.size_range[0] >= self.size_range[1]:
+            raise ConfigError(f"fit.size_range must be (low, high) with low < high, got {self.size_range}")
 
 
 @dataclass(frozen=True)
-class VideoConfig:
+class VideoConfig(_Checked):
     """Reading a clip, its background and the timing of its exposures."""
 
-    background: str = "running"
+    SECTION: ClassVar[str] = "video"
+
+    background: str = one_of("running", ("running", "global"))
     """``running``: median of the previous ``background_window`` frames (the next ones at the
     start of the clip); ``global``: median of ``global_samples`` frames spread over the clip."""
-    background_window: int = 5
+    background_window: int = bounded(5, ge=1)
     """K, the frames in the running median (paper: 5)."""
-    global_samples: int = 25
-    exposure_fraction: float = 1.0
+    global_samples: int = bounded(25, ge=1)
+    """Frames in the global median."""
+    exposure_fraction: float = bounded(1.0, gt=0, le=1)
     """Share of the frame interval the shutter is open. The motion is continued across the gap
     (1 / fraction - 1 exposures long) to predict the next frame's start."""
-    tsr: int = 8
+    tsr: int = bounded(8, ge=1)
     """Sub-frames rendered per blurred frame in ``tsr.mp4``."""
     warm_start: bool = True
     """Start each frame of a track from the previous frame's result (off: every frame cold)."""
-    track_prototypes: tuple[str, ...] = ("sphere", "sphere_large", "torus")
+    track_prototypes: tuple[str, ...] = one_of(("sphere", "sphere_large", "torus"), PROTOTYPE_NAMES)
     """Prototypes tried on the first frame of a track (the paper's cold start tries them all);
     other cold starts use ``fit.prototypes``."""
-    retry_ratio: float = 2.0
+    retry_ratio: float = bounded(2.0, gt=0)
     """A warm fit whose image loss exceeds the previous frame's by this factor is redone cold,
     and the better of the two kept."""
-    max_side: int = 4096
-    """Frames larger than this on a side are refused (the running median holds K + 1 of them)."""
+    max_side: int = bounded(4096, ge=16)
+    """Frames larger than this on a side are refused."""
 
 
 @dataclass(frozen=True)
-class DetectConfig:
+class DetectConfig(_Checked):
     """Finding the fast moving object among the blobs of the difference image."""
 
-    threshold: float = 0.1
-    """||I - B||_2 above this (RGB in [0, 1]) marks a pixel as differing from the background."""
-    open_px: int = 3
-    """Side of the square that opens the difference mask, removing specks of noise."""
-    min_area_px: int = 20
+    SECTION: ClassVar[str] = "detect"
+
+    threshold: float = bounded(0.1, gt=0, le=math.sqrt(3))
+    """||I - B||_2 over RGB (in [0, 1]) above this marks a pixel as differing from the
+    background (the paper's D). Not the fit's object region (``crop.region_threshold``)."""
+    open_px: int = bounded(3, ge=1)
+    """Side of the square that opens the difference mask, removing specks of noise (1: none)."""
+    min_area_px: int = bounded(20, ge=1)
     """Blobs smaller than this are noise."""
-    min_fill: float = 0.3
+    min_fill: float = bounded(0.3, ge=0, le=1)
     """A tracked object's blob must cover at least this fraction of the disc it is predicted to
     be; smaller blobs are noise or the remains of a slow mover."""
-    motion_px: int = 6
+    motion_px: int = bounded(6, ge=0)
     """Neighbouring masks are grown by this much before their pixels are dropped, so that an
     object creeping a few pixels per frame is dropped too."""
-    gate: float = 4.0
+    gate: float = bounded(4.0, gt=0)
     """A tracked object is looked for within this many object diameters of where its motion
     predicts it; a blob further away starts a new track."""
 
 
 @dataclass(frozen=True)
-class DemoConfig:
+class DemoConfig(_Checked):
     """The built-in demo: a short generated clip with ground truth, processed like a user's clip."""
 
-    shape: str = "ball"
-    """One of the generator's shapes: ball, box, pen, ring, key."""
-    frames: int = 8
-    width: int = 320
-    height: int = 240
-    size_px: tuple[float, float] = (24.0, 28.0)
+    SECTION: ClassVar[str] = "demo"
+
+    shape: str = one_of("ball", ("ball", "box", "pen", "ring", "key"))
+    """One of the generator's shapes."""
+    frames: int = bounded(8, ge=2)
+    """Frames of the clip (the running median needs two)."""
+    width: int = bounded(320, ge=16)
+    height: int = bounded(240, ge=16)
+    size_px: tuple[float, float] = bounded((24.0, 28.0), gt=0)
     """Range of the object's apparent diameter in pixels."""
-    speed: tuple[float, float] = (1.2, 1.5)
+    speed: tuple[float, float] = bounded((1.2, 1.5), gt=0)
     """Range of the travel per exposure, in object diameters."""
-    exposure_fraction: float = 0.8
+    exposure_fraction: float = bounded(0.8, gt=0, le=1)
     """The generated camera's shutter; the pipeline is told it (``video.exposure_fraction``)."""
-    seed: int = 0
+    seed: int = bounded(0, ge=0)
 
 
 @dataclass(frozen=True)
@@ -250,24 +323,51 @@ def _set_dotted(tree: dict[str, Any], key: str, value: Any) -> None:
     tree[leaf] = value
 
 
-def load_config(preset: str | Path = "default", overrides: list[str] | None = None) -> Config:
-    """Load a preset (a name in ``configs/`` or a YAML path) and apply ``key=value`` overrides."""
+def preset_names() -> list[str]:
+    """The names of the presets that ship with the package."""
+    files = importlib.resources.files(PRESETS).iterdir()
+    return sorted(p.name.removesuffix(".yaml") for p in files if p.name.endswith(".yaml"))
+
+
+def _preset_text(preset: str | Path) -> tuple[str, str]:
+    """The YAML text of a preset (a name or a file path) and how to name it in messages."""
     path = Path(preset)
-    if not path.suffix:
-        path = CONFIG_DIR / f"{preset}.yaml"
-    if not path.is_file():
-        raise ConfigError(f"config preset not found: {path}")
+    if path.suffix in (".yaml", ".yml") or path.parent != Path("."):
+        if not path.is_file():
+            raise ConfigError(f"config file not found: {path}")
+        return path.read_text(), str(path)
+    resource = importlib.resources.files(PRESETS) / f"{preset}.yaml"
+    if not resource.is_file():
+        names = ", ".join(preset_names())
+        raise ConfigError(f"no config preset {str(preset)!r}; the presets are {names}, or give a YAML file")
+    return resource.read_text(), f"preset {preset}"
+
+
+def load_config(preset: str | Path = "default", overrides: list[str] | None = None) -> Config:
+    """Load a preset (a name such as ``fast``, or a YAML path) and apply ``key=value`` overrides.
+
+    Raises:
+        ConfigError: a missing preset, bad YAML, an unknown key, a wrong type or a value out of
+            its range, naming the field.
+    """
     try:
-        tree = yaml.safe_load(path.read_text()) or {}
+        text, name = _preset_text(preset)
+        tree = yaml.safe_load(text) or {}
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path} is not valid YAML: {str(exc).splitlines()[0]}") from None
+        raise ConfigError(f"{preset} is not valid YAML: {str(exc).splitlines()[0]}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read the config {preset}: {exc}") from None
     if not isinstance(tree, dict):
-        raise ConfigError(f"{path} must hold a mapping of config sections")
+        raise ConfigError(f"{name} must hold a mapping of config sections")
     for item in overrides or []:
         key, sep, raw = item.partition("=")
         if not sep:
             raise ConfigError(f"override {item!r} must look like section.key=value")
-        _set_dotted(tree, key.strip(), yaml.safe_load(raw))
+        try:
+            value = yaml.safe_load(raw)
+        except yaml.YAMLError:
+            raise ConfigError(f"override {item!r}: the value is not valid YAML") from None
+        _set_dotted(tree, key.strip(), value)
     return _build(Config, tree, "")
 
 
@@ -285,5 +385,5 @@ def _plain(x: Any) -> Any:
 
 
 def save_config(path: Path, config: Config) -> None:
-    """Save the resolved config beside a run's outputs (atomically), so the run can be replayed."""
+    """Save the resolved config beside a command's outputs (atomically), so it can be replayed."""
     atomic_write_bytes(path, yaml.safe_dump(config_to_dict(config), sort_keys=False).encode())

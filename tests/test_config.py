@@ -33,7 +33,13 @@ def test_dotted_overrides_are_typed() -> None:
         ("demo.size_px=[1, 2, 3]", "list of 2 values"),
         ("render", "must look like"),
         ("fit.prototypes=[]", "non-empty list"),
-        ("fit.difference_fade=0", "fit.difference_fade must be positive"),
+        ("fit.difference_fade=0", "fit.difference_fade must be > 0, got 0.0"),
+        ("fit.iterations=-5", "fit.iterations must be >= 1, got -5"),
+        ("video.exposure_fraction=1.5", "video.exposure_fraction must be > 0 and <= 1, got 1.5"),
+        ("fit.w_image=-1", "fit.w_image must be >= 0"),
+        ("fit.size_range=[0.5, 0.1]", "low < high"),
+        ("fit.prototypes=[cube]", "fit.prototypes must be one of sphere, sphere_large, torus; got 'cube'"),
+        ("render.sigma_inv=.nan", "render.sigma_inv must be a finite number"),
     ],
 )
 def test_bad_overrides_name_the_problem(override: str, message: str) -> None:
@@ -42,8 +48,10 @@ def test_bad_overrides_name_the_problem(override: str, message: str) -> None:
 
 
 def test_missing_and_malformed_presets(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match="not found"):
+    with pytest.raises(ConfigError, match="no config preset 'no_such_preset'; the presets are default, fast"):
         load_config("no_such_preset")
+    with pytest.raises(ConfigError, match="config file not found"):
+        load_config(tmp_path / "missing.yaml")
     bad = tmp_path / "bad.yaml"
     bad.write_text("render: [unclosed\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
