@@ -19,6 +19,7 @@ import torch.nn.functional as F
 from sfb_video.checks import SfbError
 from sfb_video.config import CropConfig
 from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.imageio import as_float
 
 Box = tuple[int, int, int, int]
 """(x0, y0, width, height) in full-frame pixels; (x0, y0) is the top-left pixel."""
@@ -33,7 +34,7 @@ class Crop:
         camera: the camera that renders exactly this crop at its working resolution.
         image: (3, h, w) the blurred frame, cropped and resized.
         background: (3, h, w) the background, likewise.
-        object_mask: (h, w) the largest blob of sum_rgb |I - B| > ``detect_threshold``: the
+        object_mask: (h, w) the largest blob of sum_rgb |I - B| > ``region_threshold``: the
             object region, and the difference mask D of L_D.
     """
 
@@ -99,7 +100,7 @@ def make_crop(
     config: CropConfig,
     blob: torch.Tensor | None = None,
 ) -> Crop:
-    """Crop ``image`` and ``background`` (3, H, W) around the object box ``box``.
+    """Crop ``image`` and ``background`` (3, H, W; uint8 or float32 in [0, 1]) around the object box ``box``.
 
     Args:
         blob: (H, W) bool, the detected object; when given, the object region is restricted to
@@ -119,9 +120,9 @@ def make_crop(
     x0, y0, cw, ch = cb
     scale = min(1.0, config.max_width / cw)
     out = (max(1, round(cw * scale)), max(1, round(ch * scale)))
-    img = _resize(image[:, y0 : y0 + ch, x0 : x0 + cw], out).clamp(0, 1)
-    bgr = _resize(background[:, y0 : y0 + ch, x0 : x0 + cw], out).clamp(0, 1)
-    region = object_region(img, bgr, config.detect_threshold)
+    img = _resize(as_float(image[:, y0 : y0 + ch, x0 : x0 + cw]), out).clamp(0, 1)
+    bgr = _resize(as_float(background[:, y0 : y0 + ch, x0 : x0 + cw]), out).clamp(0, 1)
+    region = object_region(img, bgr, config.region_threshold)
     if blob is not None:
         near = _resize(blob[None, y0 : y0 + ch, x0 : x0 + cw].to(img), out)[0] > 0
         # Grown a little: the blob came from a stricter threshold and misses the streak's faint rim.

@@ -1,74 +1,35 @@
-"""Reading and writing images, atomically: a file either is complete or is not there."""
+"""Reading images, and writing them atomically (:mod:`sfb_video.atomic`)."""
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
-from types import TracebackType
-from typing import Self
 
 import cv2
 import numpy as np
 import torch
 
+from sfb_video.atomic import atomic_write_bytes
 from sfb_video.checks import SfbError
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-FILE_MODE = 0o666 & ~_umask()
-"""Permissions of a new file under this process's umask; mkstemp's private 0600 is set to it."""
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        # mkstemp makes the file private (0600); outputs should get the usual permissions.
-        os.chmod(tmp, FILE_MODE)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-class AtomicOutput:
-    """Base of writers that build a file under a temporary name: as a context manager, it calls
-    :meth:`close` (which renames the file into place) on success and :meth:`abort` (which removes
-    it) on any exception, Ctrl-C included."""
-
-    def close(self) -> None:
-        raise NotImplementedError
-
-    def abort(self) -> None:
-        raise NotImplementedError
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
+def as_float(image: torch.Tensor) -> torch.Tensor:
+    """An image kept compact (uint8 from an 8-bit source) or float32 in [0, 1], as float32 in [0, 1]."""
+    return image.float().div_(255) if image.dtype == torch.uint8 else image
 
 
 def to_uint8(image: torch.Tensor | np.ndarray) -> np.ndarray:
-    """A (3, H, W) tensor or (H, W, 3) array in [0, 1] -> (H, W, 3) uint8 RGB."""
+    """A (3, H, W) tensor (uint8, or float in [0, 1]) or (H, W, 3) array in [0, 1] -> (H, W, 3) uint8 RGB.
+
+    One float temporary, scaled, clipped and rounded in place: a 4K frame is 100 MB of floats.
+    """
+    if isinstance(image, torch.Tensor) and image.dtype == torch.uint8:
+        return image.detach().cpu().permute(1, 2, 0).contiguous().numpy()
     if isinstance(image, torch.Tensor):
-        image = image.detach().cpu().permute(1, 2, 0).numpy()
-    return np.round(np.clip(image, 0.0, 1.0) * 255).astype(np.uint8)
+        scaled = image.detach().cpu().mul(255.0).clamp_(0.0, 255.0).round_()
+        return scaled.to(torch.uint8).permute(1, 2, 0).contiguous().numpy()
+    scaled = np.multiply(image, 255.0)
+    np.clip(scaled, 0.0, 255.0, out=scaled)
+    return np.round(scaled, out=scaled).astype(np.uint8)
 
 
 def write_image(path: str | Path, image: torch.Tensor | np.ndarray) -> None:

@@ -21,21 +21,50 @@ import torch
 
 from sfb_video.checks import ConfigError, SfbError
 from sfb_video.config import VideoConfig
-from sfb_video.imageio import read_image
+from sfb_video.imageio import as_float, read_image
 from stages.read import Frame, read_frames
 
 
 @dataclass(frozen=True)
 class FrameWithBackground:
-    """A frame and its background, both (3, H, W) in [0, 1]."""
+    """A frame and its background.
+
+    Attributes:
+        index: the frame's position in the clip.
+        pixels, background_pixels: (3, H, W) each, kept as compact as the source allows: uint8
+            from an 8-bit clip (a 4K frame is 25 MB, not 100), else float32 in [0, 1].
+    """
 
     index: int
-    image: torch.Tensor
-    background: torch.Tensor
+    pixels: torch.Tensor
+    background_pixels: torch.Tensor
+
+    @property
+    def image(self) -> torch.Tensor:
+        """(3, H, W) float32 in [0, 1] (made on each access from compact pixels)."""
+        return as_float(self.pixels)
+
+    @property
+    def background(self) -> torch.Tensor:
+        """(3, H, W) float32 in [0, 1] (made on each access from compact pixels)."""
+        return as_float(self.background_pixels)
+
+
+MEDIAN_BAND_VALUES = 1 << 22
+"""The per-pixel median is taken a band of rows at a time, over about this many values of the
+stacked frames, so that a 4K clip's stack is never whole in memory."""
 
 
 def _median(images: list[torch.Tensor]) -> torch.Tensor:
-    return torch.stack(images).median(dim=0).values
+    """(3, H, W) per-pixel median of (3, H, W) frames, in their dtype (torch takes the lower
+    middle value of an even count, so a uint8 median is exactly the float one, scaled)."""
+    first = images[0]
+    out = torch.empty_like(first)
+    rows = max(1, MEDIAN_BAND_VALUES // (len(images) * first.shape[0] * first.shape[2]))
+    for top in range(0, first.shape[1], rows):
+        band = torch.stack([image[:, top : top + rows] for image in images])
+        out[:, top : top + rows] = band.median(dim=0).values
+    return out
 
 
 def running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBackground]:
@@ -47,7 +76,8 @@ def running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBa
     if len(head) < 2:
         raise SfbError("a running-median background needs at least 2 frames; give a background image instead")
     for frame in head[:window]:
-        yield FrameWithBackground(frame.index, frame.image, _median([f.image for f in head if f is not frame]))
+        others = [f.image for f in head if f is not frame]
+        yield FrameWithBackground(frame.index, frame.image, _median(others))
     previous = deque((f.image for f in head[:window]), maxlen=window)
     for frame in chain(head[window:], stream):
         yield FrameWithBackground(frame.index, frame.image, _median(list(previous)))
@@ -55,15 +85,19 @@ def running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBa
 
 
 def global_median(path: Path, samples: int, frame_count: int | None) -> torch.Tensor:
-    """(3, H, W) median of up to ``samples`` frames spread evenly over the clip at ``path``."""
+    """(3, H, W) float32 median of up to ``samples`` frames spread evenly over the clip at ``path``."""
     if samples < 1:
         raise ConfigError(f"video.global_samples must be at least 1, got {samples}")
     if frame_count is None:
         frame_count = sum(1 for _ in read_frames(path))
     step = max(1, frame_count // samples)
-    # Kept as 8-bit: the median of many large frames would otherwise dominate memory.
-    kept = [(f.image * 255).round().to(torch.uint8) for f in read_frames(path) if f.index % step == 0]
-    return _median(kept[:samples]).float() / 255
+    # Deep sources are quantised to 8 bits here: 25 float frames of 4K would take 2.5 GB.
+    kept = [_quantised(f.image) for f in read_frames(path) if f.index % step == 0]
+    return as_float(_median(kept[:samples]))
+
+
+def _quantised(image: torch.Tensor) -> torch.Tensor:
+    return image if image.dtype == torch.uint8 else image.mul(255).round_().to(torch.uint8)
 
 
 def fixed_background(frames: Iterable[Frame], background: torch.Tensor) -> Iterator[FrameWithBackground]:

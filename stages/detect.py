@@ -20,6 +20,7 @@ import torch
 
 from sfb_video.config import DetectConfig
 from sfb_video.crop import Box
+from sfb_video.imageio import as_float
 
 
 @dataclass(frozen=True)
@@ -54,9 +55,24 @@ def _opened(mask: np.ndarray, config: DetectConfig) -> torch.Tensor:
     return torch.from_numpy(out.astype(bool))
 
 
+DIFFERENCE_BAND_VALUES = 1 << 22
+"""The difference is taken a band of rows at a time, over about this many values, so that its
+float temporaries stay small for any frame size."""
+
+
 def difference_mask(image: torch.Tensor, background: torch.Tensor, config: DetectConfig) -> torch.Tensor:
-    """(H, W) bool: ||I - B||_2 > threshold over RGB, opened by an ``open_px`` square."""
-    return _opened(((image - background).norm(dim=0) > config.threshold).cpu().numpy(), config)
+    """(H, W) bool: ||I - B||_2 > threshold over RGB, opened by an ``open_px`` square.
+
+    Args:
+        image, background: (3, H, W), each uint8 or float32 in [0, 1] (as frames are kept).
+    """
+    height, width = image.shape[1:]
+    out = torch.empty(height, width, dtype=torch.bool)
+    rows = max(1, DIFFERENCE_BAND_VALUES // (3 * width))
+    for top in range(0, height, rows):
+        band = as_float(image[:, top : top + rows]) - as_float(background[:, top : top + rows])
+        out[top : top + rows] = (band.norm(dim=0) > config.threshold).cpu()
+    return _opened(out.numpy(), config)
 
 
 def moving_mask(mask: torch.Tensor, neighbours: list[torch.Tensor], config: DetectConfig) -> torch.Tensor:

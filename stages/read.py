@@ -1,7 +1,8 @@
 """Stage 1, read: a video file -> its description and a stream of frames.
 
-Frames are decoded one at a time (memory does not grow with the clip); grayscale and 16-bit
-sources come out as RGB in [0, 1] (see ``sfb_video.video``).
+Frames are decoded one at a time (memory does not grow with the clip) and kept compact: 8-bit
+sources as uint8, deeper ones as float32 in [0, 1] (``sfb_video.imageio.as_float`` turns either
+into float); grayscale sources come out as RGB.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ class Frame:
 
     Attributes:
         index: position in the clip, from 0.
-        image: (3, H, W) RGB in [0, 1].
+        image: (3, H, W) RGB: uint8 for 8-bit sources, else float32 in [0, 1].
     """
 
     index: int
@@ -57,7 +58,7 @@ def read_frames(path: Path, frames: range | None = None) -> Iterator[Frame]:
     Raises:
         SfbError: when the file cannot be decoded or holds no frame.
     """
-    with VideoReader(path) as reader:
+    with VideoReader(path, compact=True) as reader:
         for index, image in enumerate(reader):
             if frames is not None and index >= frames.stop:
                 return

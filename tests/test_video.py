@@ -187,7 +187,7 @@ def test_reader_streams_frames_and_close_releases_the_file(tmp_path: Path, monke
             writer.write(square_frame(i % 3, 64, 48))
     converted = []
     to_tensor = video._to_tensor
-    monkeypatch.setattr(video, "_to_tensor", lambda frame: converted.append(1) or to_tensor(frame))
+    monkeypatch.setattr(video, "_to_tensor", lambda frame, *rest: converted.append(1) or to_tensor(frame, *rest))
 
     reader = VideoReader(path)
     frames = iter(reader)

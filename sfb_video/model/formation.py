@@ -29,21 +29,3 @@ def composite(rgb: torch.Tensor, alpha: torch.Tensor, background: torch.Tensor) 
         (3, H, W) the blurred image.
     """
     return (rgb * alpha).mean(0) + (1 - alpha.mean(0)) * background
-
-
-def subframes(rgb: torch.Tensor, alpha: torch.Tensor, background: torch.Tensor, n: int) -> torch.Tensor:
-    """Split T renders into ``n`` consecutive sub-frames, each composited over the background.
-
-    Args:
-        rgb, alpha, background: as for :func:`composite`; T must be a multiple of ``n``.
-
-    Returns:
-        (n, 3, H, W) sub-frames; their mean is :func:`composite` of all T renders.
-    """
-    steps = rgb.shape[0]
-    if steps % n:
-        raise ValueError(f"{steps} time steps cannot be split into {n} equal sub-frames")
-    k = steps // n
-    rgb_k = rgb.reshape(n, k, *rgb.shape[1:])
-    alpha_k = alpha.reshape(n, k, *alpha.shape[1:])
-    return (rgb_k * alpha_k).mean(1) + (1 - alpha_k.mean(1)) * background

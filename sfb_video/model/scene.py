@@ -10,7 +10,7 @@ from sfb_video.config import RenderConfig
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
 from sfb_video.geometry.pose import pose_vertices
-from sfb_video.model.formation import composite, exposure_times, subframes
+from sfb_video.model.formation import exposure_times
 from sfb_video.model.motion import Motion
 from sfb_video.render import MeshRenderer, RenderOutput
 
@@ -38,23 +38,36 @@ class ObjectState:
         return renderer(pose_vertices(self.vertices, rotations, positions), self.topology, self.texture)
 
     def render_subframes(
-        self, camera: PinholeCamera, background: torch.Tensor, n: int, steps_per_subframe: int, settings: RenderConfig
+        self, camera: PinholeCamera, background: torch.Tensor, n: int, settings: RenderConfig
     ) -> torch.Tensor:
-        """(n, 3, H, W) sharp sub-frames (TSR): the formation model over [k / n, (k + 1) / n].
+        """(n, 3, H, W) sharp sub-frames (TSR): the formation model over [k / n, (k + 1) / n],
+        each averaging ``settings.steps_per_subframe`` poses.
 
         Args:
             background: (3, H, W) matching ``camera``'s image size.
         """
-        taus = exposure_times(n * steps_per_subframe, background.device)
-        with torch.no_grad():
-            out = self.render(camera, taus, settings)
-            return subframes(out.rgb, out.alpha, background, n)
+        steps = settings.steps_per_subframe
+        taus = exposure_times(n * steps, background.device).reshape(n, steps)
+        return torch.stack([self.render_blurred(camera, background, t, settings) for t in taus])
 
     def render_blurred(
-        self, camera: PinholeCamera, background: torch.Tensor, steps: int, settings: RenderConfig
+        self, camera: PinholeCamera, background: torch.Tensor, taus: torch.Tensor | int, settings: RenderConfig
     ) -> torch.Tensor:
-        """(3, H, W) the whole exposure composited over ``background``."""
-        taus = exposure_times(steps, background.device)
+        """(3, H, W) the object blurred over exposure times ``taus`` (T,) (or that many evenly
+        spaced over the whole exposure), composited over ``background``.
+
+        Poses are rendered in batches of at most ``settings.max_batch_pixels`` pixels in all, so
+        that memory stays bounded however large the image (an export at native resolution).
+        """
+        if isinstance(taus, int):
+            taus = exposure_times(taus, background.device)
+        batch = max(1, settings.max_batch_pixels // (camera.width * camera.height))
+        premultiplied = torch.zeros_like(background)  # sum_t F_t * A_t
+        coverage = torch.zeros_like(background[:1])  # sum_t A_t
         with torch.no_grad():
-            out = self.render(camera, taus, settings)
-            return composite(out.rgb, out.alpha, background)
+            for chunk in taus.split(batch):
+                out = self.render(camera, chunk, settings)
+                premultiplied += (out.rgb * out.alpha).sum(0)
+                coverage += out.alpha.sum(0)
+        # composite() of all T renders, from their sums.
+        return premultiplied / len(taus) + (1 - coverage / len(taus)) * background

@@ -1,7 +1,6 @@
-import pytest
 import torch
 
-from sfb_video.model.formation import composite, exposure_times, subframes
+from sfb_video.model.formation import composite, exposure_times
 
 
 def test_composite_is_background_where_nothing_covers_and_object_where_always_covered() -> None:
@@ -12,16 +11,6 @@ def test_composite_is_background_where_nothing_covers_and_object_where_always_co
     out = composite(rgb, alpha, background)
     assert torch.allclose(out[:, 0, 0], background[:, 0, 0])
     assert torch.allclose(out[:, 2, 3], rgb[:, :, 2, 3].mean(0))
-
-
-def test_subframes_average_to_the_blurred_image() -> None:
-    rgb, alpha, background = torch.rand(8, 3, 4, 4), torch.rand(8, 1, 4, 4), torch.rand(3, 4, 4)
-    subs = subframes(rgb, alpha, background, 4)
-    assert subs.shape == (4, 3, 4, 4)
-    assert torch.allclose(subs.mean(0), composite(rgb, alpha, background), atol=1e-6)
-    assert torch.allclose(subframes(rgb, alpha, background, 8)[2], composite(rgb[2:3], alpha[2:3], background))
-    with pytest.raises(ValueError, match="cannot be split"):
-        subframes(rgb, alpha, background, 3)
 
 
 def test_exposure_times_are_slice_midpoints() -> None:
