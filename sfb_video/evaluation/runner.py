@@ -21,20 +21,18 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from sfb_video import metrics
 from sfb_video.config import Config
 from sfb_video.evaluation.datasets import BenchmarkFrame
-from sfb_video.evaluation.synthetic import motion_errors, shape_error
+from sfb_video.evaluation.scoring import render_estimate, score_estimate
 from sfb_video.fitter import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.model.formation import exposure_times
 from sfb_video.results import FrameResult
 from sfb_video.synth import SyntheticClip
 from stages.background import FrameWithBackground
 from stages.detect import Detection
-from stages.export import STEPS_PER_SUBFRAME
-from stages.fit import fit_detection, join
+from stages.fit import fit_detection
 from stages.masks import MaskSource
+from stages.track import join
 
 MODES = ("per-frame", "video")
 
@@ -97,13 +95,7 @@ def fit_benchmark_frame(
 
 def estimate_subframes(result: FrameResult, frame: BenchmarkFrame, camera: PinholeCamera, config: Config) -> np.ndarray:
     """The (N, h, w, 3) sub-frames the fit renders on the frame's tight box, over its background."""
-    x, y, w, h = frame.box
-    n = len(frame.centres)
-    background = _tensor(frame.background[y : y + h, x : x + w])
-    rendered = result.state.render_subframes(
-        camera.crop(x, y, w, h, w, h), background, n, STEPS_PER_SUBFRAME, config.render
-    )
-    return rendered.permute(0, 2, 3, 1).numpy().astype(np.float64)
+    return render_estimate(result.state, camera, frame.box, frame.background, len(frame.centres), config.render)
 
 
 def score_frame(
@@ -116,15 +108,8 @@ def score_frame(
     """The benchmark's measures of one fitted frame, and 3D errors when ``clip`` holds the truth."""
     x, y, w, h = frame.box
     truth = frame.subframes[:, y : y + h, x : x + w]
-    n = len(frame.centres)
-    centres = camera.project(result.state.motion.at(exposure_times(n))[1])[0].numpy()
-    scores, flipped = metrics.benchmark_scores(estimate, truth, centres, frame.centres, frame.radius)
-    motion = result.state.motion.reversed() if flipped else result.state.motion
-    if clip is not None:
-        true_motion = clip.truth[frame.index].motion
-        scores |= motion_errors(motion, true_motion, n)
-        scores["mesh_err"] = shape_error(result.state, motion, true_motion, clip.scene.mesh)
-    return scores
+    truth_3d = None if clip is None else (clip.truth[frame.index].motion, clip.scene.mesh)
+    return score_estimate(result.state, estimate, truth, camera, frame.centres, frame.radius, truth_3d)[0]
 
 
 def mode_config(config: Config, mode: str) -> Config:

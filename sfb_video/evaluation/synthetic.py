@@ -1,10 +1,8 @@
 """Fitting synthetic frames and scoring the fits against their ground truth.
 
-Used by the fitter's tests and benchmark. Image measures are taken, as the FMO benchmark does,
-on the tight box of the object's exposure, with sub-frames rendered by the full-frame camera
-restricted to that box; 3D measures compare positions at the sub-frames' mid-times and the
-rotation made during the exposure (the mesh's own orientation is arbitrary for a prototype),
-and the meshes are compared posed at the start of the exposure.
+Used by the fitter's tests and benchmark and by the demo, scored by
+:mod:`sfb_video.evaluation.scoring` as the benchmark runner scores (3D measures compare the
+rotation made during the exposure: the mesh's own orientation is arbitrary for a prototype).
 """
 
 from __future__ import annotations
@@ -16,17 +14,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from sfb_video import metrics
 from sfb_video.config import Config
 from sfb_video.crop import Crop, make_crop
+from sfb_video.evaluation.scoring import render_estimate, score_estimate
 from sfb_video.fitter import FitResult, fit_frame
-from sfb_video.geometry.rotation import axis_angle_to_matrix
-from sfb_video.model.formation import exposure_times
-from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.synth import SyntheticClip
-from sfb_video.synth.shapes import TexturedMesh
-from sfb_video.synth.trajectory import FrameMotion
 
 
 @dataclass(frozen=True)
@@ -74,30 +67,6 @@ def crop_masks(clip: SyntheticClip, index: int, crop: Crop) -> torch.Tensor:
     return F.interpolate(masks[:, None], size=size, mode="bilinear", antialias=True, align_corners=False)[:, 0]
 
 
-def motion_errors(motion: Motion, truth: FrameMotion, n: int) -> dict[str, float]:
-    """3D errors of ``motion`` against the truth at ``n`` sub-frame mid-times.
-
-    Returns:
-        translation_err (object sizes) and rotation_err_deg.
-    """
-    taus = exposure_times(n)
-    _, positions = motion.at(taus)
-    true_positions = truth.x0[None] + taus.numpy()[:, None].astype(np.float64) * truth.dx[None]
-    est_delta = axis_angle_to_matrix(motion.omega.double()).numpy()
-    true_delta = axis_angle_to_matrix(torch.from_numpy(truth.omega)).numpy()
-    return {
-        "translation_err": metrics.translation_error(positions.numpy(), true_positions),
-        "rotation_err_deg": metrics.rotation_error_deg(est_delta, true_delta),
-    }
-
-
-def shape_error(state: ObjectState, motion: Motion, truth: FrameMotion, mesh: TexturedMesh) -> float:
-    """The paper's mesh distance between ``state``'s mesh and the truth, both posed at the start."""
-    vertices = (state.vertices.double() @ motion.rot0.double().T).numpy()
-    true_vertices = mesh.vertices.double().numpy() @ truth.rotation.T
-    return metrics.mesh_distance(vertices, state.topology.faces.numpy(), true_vertices, mesh.topology.faces.numpy())
-
-
 def score_state(
     state: ObjectState, clip: SyntheticClip, index: int, config: Config, may_flip: bool = True
 ) -> FrameScore:
@@ -108,25 +77,21 @@ def score_state(
             video, whose direction the pipeline resolves, is scored without.
     """
     truth = clip.truth[index]
-    n = clip.spec.num_subframes
     x, y, w, h = truth.bbox
-    box_camera = clip.camera.crop(x, y, w, h, w, h)
-    background = _image(clip.scene.background)[:, y : y + h, x : x + w]
-    estimate = state.render_subframes(box_camera, background, n, 4, config.render)
-    estimate = estimate.permute(0, 2, 3, 1).numpy()
+    background = clip.scene.background.astype(np.float64) / 255
+    estimate = render_estimate(state, clip.camera, truth.bbox, background, clip.spec.num_subframes, config.render)
     expected = truth.subframes[:, y : y + h, x : x + w].astype(np.float64) / 255
-    centres = clip.camera.project(state.motion.at(exposure_times(n))[1])[0].numpy()
-    scores, flipped = metrics.benchmark_scores(estimate, expected, centres, truth.centres, truth.radius_px, may_flip)
-    motion = state.motion.reversed() if flipped else state.motion
-    errors = motion_errors(motion, truth.motion, n)
-    return FrameScore(
-        **scores,
-        **errors,
-        mesh_err=shape_error(state, motion, truth.motion, clip.scene.mesh),
-        image_loss=float("nan"),
-        seconds=float("nan"),
-        flipped=flipped,
+    scores, flipped = score_estimate(
+        state,
+        estimate,
+        expected,
+        clip.camera,
+        truth.centres,
+        truth.radius_px,
+        (truth.motion, clip.scene.mesh),
+        may_flip,
     )
+    return FrameScore(**scores, image_loss=float("nan"), seconds=float("nan"), flipped=flipped)
 
 
 def score_fit(fit: FitResult, clip: SyntheticClip, index: int, config: Config) -> FrameScore:
