@@ -9,6 +9,12 @@ from __future__ import annotations
 import torch
 
 
+def printable(text: str) -> str:
+    """``text`` safe to print: a file name that is not valid UTF-8 (legal on Linux) reaches
+    Python with surrogate escapes, which an UTF-8 stream refuses; they become U+FFFD."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+
+
 class SfbError(ValueError):
     """Base class of every error that sfb-video reports to a user as one line."""
 
@@ -23,6 +29,10 @@ class PoseError(SfbError):
 
 class ConfigError(SfbError):
     """A configuration file or override is invalid."""
+
+
+class OutputError(SfbError):
+    """An output could not be written: a full disk, a folder removed or made read-only mid-run."""
 
 
 def check_shape(x: torch.Tensor, shape: tuple[int | None, ...], name: str) -> None:

@@ -1,17 +1,18 @@
 """The ``sfb-video`` command line: a preset plus dotted overrides, one subcommand per job.
 
-Errors a user can act on (bad input, bad config, unwritable output) print one line and exit
-with status 2; a clip in which no moving object is found exits with 3 (its outputs are still
-written); Ctrl-C exits with 130 and leaves no half-written output.
+Errors a user can act on (bad input, bad options or config) print one line and exit with
+status 2; a clip in which no moving object is found exits with 3 (its outputs are still
+written); outputs that cannot be written (a full disk, a folder removed or made read-only
+mid-run) exit with 4, keeping what can be resumed; Ctrl-C exits with 130. No command leaves a
+half-written output that looks complete (:mod:`sfb_video.run_folder`).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import sys
-import tempfile
+import typing
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -19,15 +20,21 @@ from typing import TYPE_CHECKING
 import torch
 
 from sfb_video import __version__
-from sfb_video.checks import SfbError
+from sfb_video.checks import OutputError, SfbError, printable
 from sfb_video.config import load_config, save_config
+from sfb_video.run_folder import CONFIG, open_export, open_run
 
 if TYPE_CHECKING:
     from sfb_video.config import Config
     from stages.masks import MaskSource
 
+BAD_INPUT = 2
+"""Exit status of bad input, options or config (one line on stderr)."""
 NOTHING_FOUND = 3
 """Exit status of a run that finished but found no moving object in any frame."""
+OUTPUT_FAILED = 4
+"""Exit status of a run whose outputs could not be written (full disk, folder gone, no permission)."""
+INTERRUPTED = 130
 
 
 def resolve_device(name: str) -> torch.device:
@@ -42,37 +49,12 @@ def resolve_device(name: str) -> torch.device:
         raise SfbError(f"unknown device {name!r}; use auto, cpu or cuda") from None
 
 
-class OutputFolder:
-    """A run folder written in a hidden sibling and moved into place only when complete."""
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``sfb-video process: error: argument --tsr: ... (see --help)``."""
 
-    def __init__(self, path: Path, overwrite: bool) -> None:
-        # Checked up front, so a long job does not end in an error it could have shown first.
-        self.path = path
-        if path.exists() and not overwrite:
-            raise SfbError(f"output folder {path} already exists; pass --overwrite to replace it")
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise SfbError(f"cannot write to output folder {path}: {exc.strerror}") from None
-        if not os.access(path.parent, os.W_OK):
-            raise SfbError(f"cannot write to output folder {path}: permission denied")
-
-    def __enter__(self) -> Path:
-        self.tmp = Path(tempfile.mkdtemp(dir=self.path.parent, prefix=f".{self.path.name}.partial-"))
-        return self.tmp
-
-    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
-        if exc_type is not None:
-            shutil.rmtree(self.tmp, ignore_errors=True)
-            return
-        if self.path.exists():
-            old = self.path.with_name(f".{self.path.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            self.path.rename(old)
-            self.tmp.rename(self.path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            self.tmp.rename(self.path)
+    def error(self, message: str) -> typing.NoReturn:
+        print(f"{self.prog}: error: {message} (see {self.prog} --help)", file=sys.stderr)
+        sys.exit(BAD_INPUT)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -87,9 +69,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"generating a {config.demo.frames}-frame clip of a {config.demo.shape} -> {video}")
     clip = demo_clip(config)
     try:
+        video.parent.mkdir(parents=True, exist_ok=True)
         write_clip_video(clip, video)
-    except OSError as exc:
-        raise SfbError(f"cannot write the demo clip {video}: {exc}") from None
+    except (OSError, SfbError) as exc:
+        raise SfbError(f"cannot write the demo clip: {getattr(exc, 'strerror', None) or exc}") from None
     options = ProcessOptions(
         video=video, out=out, overwrite=args.overwrite, masks=args.masks, defmo_weights=_defmo_weights(args)
     )
@@ -133,55 +116,88 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     config = load_config(args.config, args.set)
     device = resolve_device(args.device)
+    if args.tsr < 1:
+        raise SfbError(f"--tsr must be at least 1, got {args.tsr}")
     image, background = read_image(args.image), read_image(args.background)
     if image.shape != background.shape:
         raise SfbError(f"image {args.image} and background {args.background} differ in size")
     camera = PinholeCamera.from_fov(image.shape[2], image.shape[1], config.camera.fov_y_deg)
-    box = _parse_box(args.box) or find_object_box(image, background, config.crop.detect_threshold)
+    box = _parse_box(args.box) or find_object_box(image, background, config.crop.region_threshold)
     if box is None:
         raise NoObjectError(f"no object: {args.image} does not differ from its background")
     frame = FrameWithBackground(0, image.to(device), background.to(device))
     crop = make_crop(frame.image, frame.background, box, camera, config.crop)
     out = Path(args.out or f"runs/{Path(args.image).stem}")
-    folder = OutputFolder(out, args.overwrite)
-    masks = _mask_source(args, config, device).masks(frame, box, crop, config.render.time_steps)
-    steps = config.fit.iterations * len(config.fit.prototypes)
-    # disable=None: no bar when stderr is not a terminal (logs, CI).
-    with tqdm(total=steps, desc="fit", unit="step", disable=True if args.quiet else None, leave=False) as bar:
+    inputs = {"image": str(Path(args.image).resolve()), "background": str(Path(args.background).resolve())}
+    with open_run(out, "fit", inputs | {"box": list(box), "tsr": args.tsr}, overwrite=args.overwrite) as run:
+        masks = _mask_source(args, config, device).masks(frame, box, crop, config.render.time_steps)
+        steps = config.fit.iterations * len(config.fit.prototypes)
+        # disable=None: no bar when stderr is not a terminal (logs, CI).
+        with tqdm(total=steps, desc="fit", unit="step", disable=True if args.quiet else None, leave=False) as bar:
 
-        def on_step(step: int, losses: dict[str, float]) -> None:
-            bar.update(1)
-            bar.set_postfix(L_I=f"{losses['image']:.4f}")
+            def on_step(step: int, losses: dict[str, float]) -> None:
+                bar.update(1)
+                bar.set_postfix(L_I=f"{losses['image']:.4f}")
 
-        fit = fit_frame(crop, config.fit, config.render, masks=masks, on_step=on_step)
-    with folder as tmp:
-        write_fit(tmp, fit, crop, args.tsr, config.render, masks)
-        save_config(tmp / "config.yaml", config)
+            fit = fit_frame(crop, config.fit, config.render, masks=masks, on_step=on_step)
+        write_fit(run.work, fit, crop, args.tsr, config.render, masks)
+        save_config(run.work / CONFIG, config)
+        run.finish()
     if not args.quiet:
         print(
-            f"wrote {out}/: prototype {fit.prototype}, L_I {fit.losses['image']:.4f}, "
+            f"wrote {printable(str(out))}/: prototype {fit.prototype}, L_I {fit.losses['image']:.4f}, "
             f"{fit.iterations} steps in {fit.seconds:.1f} s; mesh.glb, tsr.png, reconstruction.png, "
             f"{'masks.png, ' if masks is not None else ''}fit.json"
         )
     return 0
 
 
-def _parse_frames(text: str | None) -> range | None:
+def parse_frames(text: str | None) -> tuple[int | None, int | None] | None:
+    """``--frames`` as (start, stop), Python-style: STOP excluded, negative counts from the end,
+    either may be left out (``10:40``, ``:5``, ``-10:``, ``7``)."""
     if text is None:
         return None
     start, sep, stop = text.partition(":")
     try:
-        frames = range(int(start or 0), int(stop)) if sep else range(int(start), int(start) + 1)
+        first = int(start) if start.strip() else None
+        last = (int(stop) if stop.strip() else None) if sep else (None if first is None else first + 1)
     except ValueError:
-        raise SfbError(f"--frames must be START:STOP (frame indices, STOP excluded), got {text!r}") from None
-    if frames.start < 0 or len(frames) == 0:
-        raise SfbError(f"--frames {text!r} selects no frames")
+        raise SfbError(
+            f"--frames must be START:STOP (frame indices, STOP excluded, negative from the end), got {text!r}"
+        ) from None
+    if not sep and first == -1:
+        last = None  # "-1" alone: the last frame
+    return first, last
+
+
+def resolve_frames(spec: tuple[int | None, int | None] | None, video: Path, text: str) -> range | None:
+    """The frames ``--frames`` selects in ``video`` (negative indices need the clip's length).
+
+    Raises:
+        SfbError: the range is empty, or counts from the end of a clip that records no length.
+    """
+    if spec is None:
+        return None
+    from sfb_video.video import VideoReader
+
+    start, stop = spec
+    with VideoReader(video) as reader:
+        count = reader.info.frame_count
+    if count is None and ((start or 0) < 0 or (stop is not None and stop < 0)):
+        raise SfbError(f"--frames {text}: {video} does not record its length; give indices from its start")
+    frames = (
+        range(*slice(start, stop).indices(count))
+        if count is not None
+        else range(start or 0, 2**62 if stop is None else stop)
+    )
+    if len(frames) == 0:
+        raise SfbError(f"--frames {text} selects no frames" + (f" of the {count}-frame clip" if count else ""))
     return frames
 
 
 def _print_summary(out: Path, summary: dict) -> None:
     print(
-        f"wrote {out}/: {summary['frames_fitted']} of {summary['frames_read']} frames fitted "
+        f"wrote {printable(str(out))}/: {summary['frames_fitted']} of {summary['frames_read']} frames fitted "
         f"({summary['cold_starts']} cold, {summary['warm_starts']} warm), "
         f"{summary['frames_without_object']} without the object"
     )
@@ -203,10 +219,14 @@ def cmd_process(args: argparse.Namespace) -> int:
     overrides = list(args.set) + ([f"video.tsr={args.tsr}"] if args.tsr is not None else [])
     config = load_config(args.config, overrides)
     video = Path(args.video)
+    if video.is_dir():
+        raise SfbError(f"{video} is a folder, not a video file")
+    if not video.exists():
+        raise SfbError(f"video not found: {video}")
     options = ProcessOptions(
         video=video,
         out=Path(args.out or f"runs/{video.stem}"),
-        frames=_parse_frames(args.frames),
+        frames=resolve_frames(parse_frames(args.frames), video, args.frames),
         background=None if args.background is None else Path(args.background),
         focal_px=args.focal_px,
         object_diameter=args.object_diameter,
@@ -214,8 +234,6 @@ def cmd_process(args: argparse.Namespace) -> int:
         masks=args.masks,
         defmo_weights=_defmo_weights(args),
     )
-    if not video.is_file():
-        raise SfbError(f"video not found: {video}")
     summary = process_clip(options, config, resolve_device(args.device), quiet=args.quiet)
     if not args.quiet:
         _print_summary(options.out, summary)
@@ -227,20 +245,26 @@ def cmd_process(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from sfb_video.run_folder import saved_frames
+    from stages.novel_views import write_novel_views
     from stages.process import export_run
 
-    folder = Path(args.run)
-    if not (folder / "config.yaml").is_file():
-        raise SfbError(f"{folder} is not an sfb-video run folder (no config.yaml)")
-    config = load_config(folder / "config.yaml", args.set)
-    tsr = args.tsr if args.tsr is not None else config.video.tsr
-    summary = export_run(folder, config, tsr)
-    if args.novel_views is not None:
-        from stages.novel_views import write_novel_views
-
-        write_novel_views(folder, config, args.novel_views, args.views)
+    if args.tsr is not None and args.tsr < 1:
+        raise SfbError(f"--tsr must be at least 1, got {args.tsr}")
+    if args.views < 2:
+        raise SfbError(f"--views must be at least 2, got {args.views}")
+    with open_export(Path(args.run)) as run:
+        config = load_config(run.work / CONFIG, args.set)
+        fitted = saved_frames(run.work)
+        missing = [f for f in args.novel_views or [] if f not in fitted]
+        if missing:
+            raise SfbError(f"frame {missing[0]} was not fitted; fitted frames: {sorted(fitted)}")
+        summary = export_run(run.work, config, args.tsr if args.tsr is not None else config.video.tsr)
+        if args.novel_views is not None:
+            write_novel_views(run.work, config, args.novel_views, args.views)
+        run.finish()
     if not args.quiet:
-        _print_summary(folder, summary)
+        _print_summary(run.path, summary)
     return 0
 
 
@@ -267,71 +291,60 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from sfb_video.evaluation.runner import MODES, run_sequence
-    from sfb_video.evaluation.tables import markdown, summarise, write_tables
+    from sfb_video.evaluation.tables import TABLE, markdown, summarise, write_tables
 
     config = load_config(args.config, args.set)
     device = resolve_device(args.device)
     if args.max_frames is not None and args.max_frames < 1:
         raise SfbError(f"--max-frames must be at least 1, got {args.max_frames}")
-    sequences = _eval_sequences(args)
-    masks = _mask_source(args, config, device)
     modes = MODES if args.mode == "both" else (args.mode,)
     out = Path(args.out or f"runs/eval-{args.dataset}")
-    _fresh_folder(out, args.overwrite)
-    save_config(out / "config.yaml", config)
-    runs = [(s, m) for s in sequences for m in modes]
-    frames = sum(min(s.num_frames, args.max_frames or s.num_frames) for s, _ in runs)
+    record = {
+        "dataset": args.dataset,
+        "root": str(Path(args.root).resolve()),
+        "modes": list(modes),
+        "sequences": args.sequence,
+        "max_frames": args.max_frames,
+    }
     rows = []
-    # disable=None: no bar when stderr is not a terminal (logs, CI).
-    with tqdm(total=frames, desc="eval", unit="frame", disable=True if args.quiet else None) as bar:
-        for done, (sequence, mode) in enumerate(runs, start=1):
-            bar.set_postfix(sequence=sequence.name, mode=mode)
-            rows += run_sequence(
-                sequence, config, mode, device, args.max_frames, on_frame=lambda _: bar.update(1), masks=masks
-            )
-            # Tables after every sequence: an interrupted evaluation keeps what it finished, marked.
-            note = "" if done == len(runs) else f"Incomplete: {done} of {len(runs)} sequence runs finished.\n\n"
-            write_tables(out, rows, f"{note}Sub-frame masks: {masks.name} ({masks.reason}).\n\n")
+    # An interrupted evaluation in a new folder keeps the tables it finished, marked incomplete.
+    with open_run(out, "eval", record, overwrite=args.overwrite, keep=lambda f: (f / TABLE).is_file()) as run:
+        sequences = _eval_sequences(args)
+        masks = _mask_source(args, config, device)
+        runs = [(s, m) for s in sequences for m in modes]
+        frames = sum(min(s.num_frames, args.max_frames or s.num_frames) for s, _ in runs)
+        save_config(run.work / CONFIG, config)
+        # disable=None: no bar when stderr is not a terminal (logs, CI).
+        with tqdm(total=frames, desc="eval", unit="frame", disable=True if args.quiet else None) as bar:
+            for done, (sequence, mode) in enumerate(runs, start=1):
+                bar.set_postfix(sequence=sequence.name, mode=mode)
+                rows += run_sequence(
+                    sequence, config, mode, device, args.max_frames, on_frame=lambda _: bar.update(1), masks=masks
+                )
+                note = "" if done == len(runs) else f"Incomplete: {done} of {len(runs)} sequence runs finished.\n\n"
+                write_tables(run.work, rows, f"{note}Sub-frame masks: {masks.name} ({masks.reason}).\n\n")
+        run.finish()
     if not args.quiet:
         print(markdown(summarise(rows)))
-        print(f"wrote {out}/: table.md, sequences.csv, frames.csv, config.yaml")
+        print(f"wrote {printable(str(out))}/: table.md, sequences.csv, frames.csv, config.yaml")
     return 0
 
 
-def _fresh_folder(path: Path, overwrite: bool) -> None:
-    """Create ``path`` for outputs written file by file; an existing one only with ``overwrite``."""
-    if path.exists() and any(path.iterdir()) and not overwrite:
-        raise SfbError(f"output folder {path} already exists; pass --overwrite to replace it")
-    try:
-        if path.exists():
-            shutil.rmtree(path)
-        path.mkdir(parents=True)
-    except OSError as exc:
-        raise SfbError(f"cannot write to output folder {path}: {exc.strerror}") from None
-
-
 def cmd_replay(args: argparse.Namespace) -> int:
-    import subprocess
+    from sfb_video.replay import replay
 
-    path = Path(args.run)
-    path = path / "recording.rrd" if path.is_dir() else path
-    if not path.is_file():
-        raise SfbError(f"no recording at {path}; run sfb-video process first")
-    viewer = shutil.which("rerun")
-    if viewer is None:
-        raise SfbError("the rerun viewer is not on PATH; install rerun-sdk into this environment")
-    return subprocess.call([viewer, str(path)])
+    return replay(Path(args.run), web=args.web, web_port=args.web_port, grpc_port=args.grpc_port, bind=args.bind)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="sfb-video", description="Shape from Blur for videos of fast moving objects.")
+    parser = Parser(prog="sfb-video", description="Shape from Blur for videos of fast moving objects.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--config", default="default", help="preset name in configs/ or a YAML path")
+    common.add_argument("--config", default="default", help="preset name (default, fast) or a YAML path")
     common.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config field")
     common.add_argument("--device", default="auto", help="auto (CUDA if present), cpu or cuda")
-    common.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    common.add_argument("--overwrite", action="store_true", help="replace an existing output folder of sfb-video's")
     common.add_argument("--quiet", action="store_true", help="print nothing on success")
     common.add_argument(
         "--masks",
@@ -357,7 +370,9 @@ def build_parser() -> argparse.ArgumentParser:
     process.add_argument("video", help="the clip (any format FFmpeg reads)")
     process.add_argument("--out", help="run folder (default: runs/<clip name>)")
     process.add_argument("--tsr", type=int, help="sub-frames per frame in tsr.mp4 (default: video.tsr, 8)")
-    process.add_argument("--frames", help="only frames START:STOP (STOP excluded), e.g. 10:40")
+    process.add_argument(
+        "--frames", help="only frames START:STOP (STOP excluded; negative counts from the end), e.g. 10:40, -30:"
+    )
     process.add_argument("--background", help="a background image instead of the running median")
     process.add_argument("--object-diameter", type=float, help="the object's diameter in metres, for metric output")
     process.add_argument("--focal-px", type=float, help="focal length in pixels (default: from camera.fov_y_deg)")
@@ -385,26 +400,62 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.set_defaults(func=cmd_eval)
     replay = sub.add_parser("replay", help="open a run's recording in the rerun viewer")
     replay.add_argument("run", help="a run folder or a .rrd file")
+    replay.add_argument("--web", action="store_true", help="serve rerun's web viewer from this machine (no display)")
+    replay.add_argument("--web-port", type=int, default=9090, help="port of the web viewer's page (with --web)")
+    replay.add_argument("--grpc-port", type=int, default=9876, help="port the recording streams from (with --web)")
+    replay.add_argument(
+        "--bind", default="0.0.0.0", help="address to serve on (with --web; 127.0.0.1: this machine only)"
+    )
     replay.set_defaults(func=cmd_replay)
     return parser
 
 
+# Options whose value may start with "-" (argparse would take "--frames -10:" for two options).
+_DASH_VALUES = ("--frames",)
+
+
+def _attach_dash_values(argv: list[str]) -> list[str]:
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1] in _DASH_VALUES and arg[:1] == "-" and (arg[1:2].isdigit() or arg[1:2] == ":"):
+            out[-1] = f"{out[-1]}={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
+_INTERRUPTED = {
+    "process": "frames fitted so far are kept (a run being replaced stays as it was); "
+    "run the same command again to resume",
+    "demo": "frames fitted so far are kept; run the same command again to resume",
+    "eval": "a new output folder keeps the tables of the sequences finished so far; a replaced one stays as it was",
+}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    # rerun's own log lines (a failed file write, before our one-line error) would break the
+    # one-line promise; RUST_LOG=warn brings them back.
+    os.environ.setdefault("RUST_LOG", "off")
+    args = build_parser().parse_args(_attach_dash_values(list(sys.argv[1:] if argv is None else argv)))
     try:
         return args.func(args)
+    except OutputError as exc:
+        resumable = args.command in ("process", "demo")
+        kept = "; frames fitted so far are kept: run the same command again to resume" if resumable else ""
+        print(f"sfb-video: error: {printable(str(exc))}{kept}", file=sys.stderr)
+        return OUTPUT_FAILED
     except SfbError as exc:
-        print(f"sfb-video: error: {exc}", file=sys.stderr)
-        return 2
+        print(f"sfb-video: error: {printable(str(exc))}", file=sys.stderr)
+        return BAD_INPUT
+    except OSError as exc:
+        # What no check foresaw (a device error, a file vanishing under a reader): still one line.
+        where = f": {printable(str(exc.filename))}" if exc.filename else ""
+        print(f"sfb-video: error: {exc.strerror or exc}{where}", file=sys.stderr)
+        return OUTPUT_FAILED
     except KeyboardInterrupt:
-        if args.command == "process":
-            note = "frames finished so far are kept; run the same command again to resume"
-        elif args.command == "eval":
-            note = "the tables hold the sequences finished so far, marked incomplete"
-        else:
-            note = "no partial output was left"
+        note = _INTERRUPTED.get(args.command, "no partial output was left")
         print(f"sfb-video: interrupted; {note}", file=sys.stderr)
-        return 130
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

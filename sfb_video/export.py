@@ -8,21 +8,20 @@ formats require, and v flipped to their bottom-left texture origin.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 import trimesh
 from PIL import Image
 
+from sfb_video.atomic import atomic_write_bytes, write_json
 from sfb_video.config import RenderConfig
 from sfb_video.crop import Crop
 from sfb_video.fitter import FitResult
 from sfb_video.geometry.rotation import matrix_to_axis_angle
-from sfb_video.imageio import atomic_write_bytes, to_uint8, write_image
+from sfb_video.imageio import to_uint8, write_image
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 
@@ -73,19 +72,6 @@ def motion_record(motion: Motion) -> dict[str, Any]:
     }
 
 
-def write_json(path: Path, data: dict[str, Any]) -> None:
-    """Write ``data`` as indented JSON, atomically."""
-    atomic_write_bytes(path, (json.dumps(data, indent=2, default=_jsonable) + "\n").encode())
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, torch.Tensor | np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    raise TypeError(f"cannot write {type(x).__name__} as JSON")
-
-
 def write_fit(
     folder: Path, fit: FitResult, crop: Crop, tsr: int, render_config: RenderConfig, masks: torch.Tensor | None
 ) -> None:
@@ -98,7 +84,7 @@ def write_fit(
     """
     residual = (crop.image - fit.reconstruction).abs().mul(4).clamp(0, 1)
     write_image(folder / "reconstruction.png", torch.cat((crop.image, fit.reconstruction, residual), dim=2))
-    subframes = fit.state.render_subframes(crop.camera, crop.background, tsr, 4, render_config)
+    subframes = fit.state.render_subframes(crop.camera, crop.background, tsr, render_config)
     write_image(folder / "tsr.png", torch.cat(list(subframes), dim=2))
     if masks is not None:
         write_image(folder / "masks.png", torch.cat(list(masks), dim=1).expand(3, -1, -1))

@@ -2,8 +2,8 @@
 
 Open it with ``rerun recording.rrd``. The file is streamed to disk while the clip is processed:
 memory holds no images, only rerun's small per-chunk index (see ``WRITE_FOOTER``). It appears
-under its final name only when the recorder is closed; until then it is a hidden
-``.<name>.<random>.tmp.rrd`` in the same folder, removed if the run fails.
+under its final name only when the recorder is closed; until then it is a hidden temporary file
+in the same folder (:func:`sfb_video.atomic.temporary_sibling`), removed if the run fails.
 
 Entity layout (what each path holds):
 
@@ -56,18 +56,20 @@ pixels (x, y, w, h) spans [x, x + w] x [y, y + h].
 from __future__ import annotations
 
 import os
-import tempfile
+import shutil
 import uuid
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 import torch
 
-from sfb_video.checks import SfbError, check_shape
+from sfb_video.atomic import AtomicOutput, output_error, temporary_sibling
+from sfb_video.checks import OutputError, SfbError, check_shape
 from sfb_video.export import to_trimesh
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.imageio import FILE_MODE, AtomicOutput, to_uint8
+from sfb_video.imageio import to_uint8
 from sfb_video.model.formation import exposure_times
 from sfb_video.model.scene import ObjectState
 
@@ -79,6 +81,10 @@ JPEG_QUALITY = 90
 # measured). Everything else streams to disk; False makes memory flat but rerun then warns on
 # stderr and readers treat the file as the legacy format.
 WRITE_FOOTER = True
+# rerun's file writer stops on a write error (a full disk) and says so only in its own log; a
+# flush without a time limit then waits forever. Every frame is flushed with this limit, which
+# turns a dead writer into an error at once (a healthy one writes a frame in milliseconds).
+FLUSH_TIMEOUT_S = 120.0
 MASK_CLASS = 1
 SUBFRAME_MASK_CLASS = 2
 # In object sizes (the unit of the 3D scene), so they scale with the object.
@@ -96,7 +102,7 @@ class Recorder(AtomicOutput):
     ``rr.RecordingStream``, never the global one, so several can be open in one process.
 
     Args:
-        path: the final ``.rrd`` path; its folder is created if missing.
+        path: the final ``.rrd`` path, in a folder that exists.
         camera: the full-frame camera every image passed in must match.
         name: the clip's name, shown as the recording's name in the viewer.
         recording_id: rerun's recording id; by default derived from ``name``, so re-runs of one
@@ -111,14 +117,7 @@ class Recorder(AtomicOutput):
         self.camera = camera
         self._frame: int | None = None
         self._masks_shown = False
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".tmp.rrd")
-        except OSError as e:
-            raise SfbError(f"cannot write the recording {self.path}: {e.strerror or e}") from None
-        os.close(fd)
-        os.chmod(tmp, FILE_MODE)
-        self._tmp: Path | None = Path(tmp)
+        self._tmp: Path | None = temporary_sibling(self.path, ".rrd")
         if recording_id is None:
             recording_id = str(uuid.uuid5(uuid.NAMESPACE_URL, f"{APPLICATION_ID}:{name}"))
         self._rec = rr.RecordingStream(application_id=APPLICATION_ID, recording_id=recording_id)
@@ -129,7 +128,7 @@ class Recorder(AtomicOutput):
             self._rec.save(self._tmp, write_footer=WRITE_FOOTER)
         except (RuntimeError, OSError) as e:
             self.abort()
-            raise SfbError(f"cannot write the recording {self.path}: {str(e).splitlines()[0]}") from None
+            raise OutputError(f"cannot write the recording {self.path}: {str(e).splitlines()[0]}") from None
         try:
             self._rec.send_recording_name(name)
             self._log_static(camera)
@@ -144,6 +143,7 @@ class Recorder(AtomicOutput):
         """Log frame ``index``: the input ``image`` and the ``background``, both (3, H, W) in [0, 1]."""
         self._check_image(image, "image")
         self._check_image(background, "background")
+        self._flush()  # what the previous frame logged: a write error surfaces here, not at the end
         self._at(frame=index)
         self._log("world/camera/image", _jpeg(image))
         self._log("background", _jpeg(background))
@@ -173,7 +173,7 @@ class Recorder(AtomicOutput):
         index: int,
         state: ObjectState,
         reconstruction: torch.Tensor,
-        subframes: torch.Tensor,
+        subframes: Sequence[torch.Tensor],
         losses: dict[str, float],
         curve: list[dict[str, float]],
     ) -> None:
@@ -183,14 +183,16 @@ class Recorder(AtomicOutput):
             state: the fitted object; its mesh is logged with its pose at mid-exposure on the frame
                 timeline and at each sub-frame's mid-time on the subframe timeline.
             reconstruction: (3, H, W) full-frame I_hat in [0, 1].
-            subframes: (n, 3, H, W) full-frame TSR sub-frames in [0, 1]; n sets the subframe
-                timeline's step for this frame (values ``index * n + k``).
+            subframes: n full-frame TSR sub-frames (3, H, W) in [0, 1] (a tensor (n, 3, H, W) or
+                a sequence that makes them one at a time); n sets the subframe timeline's step
+                for this frame (values ``index * n + k``).
             losses: the final value of each loss.
             curve: one dict (loss name -> value) per optimisation step.
         """
         self._check_image(reconstruction, "reconstruction")
-        check_shape(subframes, (None, 3, self.camera.height, self.camera.width), "subframes")
-        n = subframes.shape[0]
+        if isinstance(subframes, torch.Tensor):
+            check_shape(subframes, (None, 3, self.camera.height, self.camera.width), "subframes")
+        n = len(subframes)
         if n < 1:
             raise SfbError("subframes must hold at least one sub-frame")
         device = state.motion.x0.device
@@ -207,8 +209,10 @@ class Recorder(AtomicOutput):
             self._log(f"losses/{rr.escape_entity_path_part(name)}", rr.Scalars(float(value)))
 
         for k in range(n):
+            sub = subframes[k]
+            self._check_image(sub, "subframe")
             self._at(subframe=index * n + k)
-            self._log("tsr", _jpeg(subframes[k]))
+            self._log("tsr", _jpeg(sub))
             self._log("world/object", _transform(sub_rot[k], sub_pos[k]))
 
         # One columnar call per loss instead of a log call per step and loss: a fit runs hundreds
@@ -284,12 +288,12 @@ class Recorder(AtomicOutput):
         tmp, self._tmp = self._tmp, None
         try:
             # disconnect() writes the footer and closes the file; only then is it complete.
-            self._rec.flush()
+            self._flush(tmp)
             self._rec.disconnect()
             os.replace(tmp, self.path)
         except OSError as e:
             tmp.unlink(missing_ok=True)
-            raise SfbError(f"cannot write the recording {self.path}: {e.strerror or e}") from None
+            raise output_error(self.path, e) from None
         except BaseException:
             tmp.unlink(missing_ok=True)
             raise
@@ -337,6 +341,25 @@ class Recorder(AtomicOutput):
     def _log(self, path: str, *archetypes: rr.AsComponents, static: bool = False) -> None:
         self._check_open()
         self._rec.log(path, *archetypes, static=static, strict=True)
+
+    def _flush(self, tmp: Path | None = None) -> None:
+        """Wait until everything logged is in the file; a writer that died is an OutputError."""
+        tmp = tmp or self._tmp
+        try:
+            self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        except RuntimeError as e:
+            folder = self.path.parent
+            if not folder.is_dir():
+                reason = f"its folder {folder} was removed"
+            elif shutil.disk_usage(folder).free < 1 << 20:
+                reason = "No space left on device"
+            else:
+                reason = f"rerun's file writer stopped ({str(e).splitlines()[0]})"
+            self._tmp = None
+            self._rec.disconnect()
+            if tmp is not None:
+                tmp.unlink(missing_ok=True)
+            raise OutputError(f"cannot write {self.path}: {reason}") from None
 
     def _check_open(self) -> None:
         if self._tmp is None:

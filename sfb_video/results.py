@@ -1,8 +1,8 @@
 """What the video pipeline keeps of each fitted frame, and how it is saved and loaded.
 
 One :class:`FrameResult` per frame in which the object was fitted. It is saved as soon as the
-frame is done (``frames/frame_XXXX.pt`` in the run folder, written atomically), which is what
-lets an interrupted run resume and ``sfb-video export`` re-render without fitting again.
+frame is done (:func:`sfb_video.run_folder.frame_path`, written atomically), which is what lets
+an interrupted run resume and ``sfb-video export`` re-render without fitting again.
 """
 
 from __future__ import annotations
@@ -15,13 +15,14 @@ from typing import Any
 
 import torch
 
+from sfb_video.atomic import atomic_write_bytes
 from sfb_video.checks import SfbError
 from sfb_video.crop import Box
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
-from sfb_video.imageio import atomic_write_bytes
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
+from sfb_video.run_folder import FRAMES, ensure_folder, frame_path
 
 
 @dataclass(frozen=True)
@@ -69,11 +70,6 @@ class FrameResult:
         return dataclasses.replace(self, state=state, masks=self.masks.flip(0), masks_reversed=not self.masks_reversed)
 
 
-def result_path(folder: Path, index: int) -> Path:
-    """Where the result of frame ``index`` lives in a run folder."""
-    return folder / "frames" / f"frame_{index:05d}.pt"
-
-
 def save_result(folder: Path, result: FrameResult) -> None:
     """Write ``result`` into the run ``folder``, atomically."""
     s = result.state
@@ -100,7 +96,8 @@ def save_result(folder: Path, result: FrameResult) -> None:
     }
     buffer = io.BytesIO()
     torch.save(record, buffer)
-    atomic_write_bytes(result_path(folder, result.index), buffer.getvalue())
+    ensure_folder(folder / FRAMES)
+    atomic_write_bytes(frame_path(folder, result.index), buffer.getvalue())
 
 
 def load_result(path: Path) -> FrameResult:
@@ -128,12 +125,7 @@ def load_result(path: Path) -> FrameResult:
         raise SfbError(f"cannot read the frame result {path}: {exc}") from None
 
 
-def saved_frames(folder: Path) -> set[int]:
-    """Indices of the frames whose results are saved in a run ``folder``."""
-    return {int(p.stem.removeprefix("frame_")) for p in (folder / "frames").glob("frame_*.pt")}
-
-
 def load_results(folder: Path) -> dict[int, FrameResult]:
     """Every frame result saved in a run ``folder``, by frame index."""
-    results = (load_result(p) for p in sorted((folder / "frames").glob("frame_*.pt")))
+    results = (load_result(p) for p in sorted((folder / FRAMES).glob("frame_*.pt")))
     return {r.index: r for r in results}

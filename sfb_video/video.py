@@ -13,7 +13,6 @@ import contextlib
 import functools
 import math
 import os
-import secrets
 from collections.abc import Iterator
 from dataclasses import dataclass
 from fractions import Fraction
@@ -24,11 +23,16 @@ import av
 import numpy as np
 import torch
 
-from sfb_video.checks import SfbError, check_shape
-from sfb_video.imageio import AtomicOutput, to_uint8
+from sfb_video.atomic import AtomicOutput, output_error, temporary_sibling
+from sfb_video.checks import OutputError, SfbError, check_shape
+from sfb_video.imageio import to_uint8
 
 # The frame rate reported when FFmpeg gives none (average, guessed and base rates all unset).
 DEFAULT_FPS = 30.0
+# x264 holds its lookahead (40 frames) in every frame thread: 1.7 GB for 4K frames. Above 1080p
+# a short lookahead on two threads keeps it near 0.5 GB, at no cost in speed measured on 2 cores.
+_LARGE_FRAME = 1920 * 1080
+_LARGE_FRAME_OPTIONS = {"rc-lookahead": "5", "threads": "2"}
 
 
 @dataclass(frozen=True)
@@ -63,12 +67,15 @@ def _is_deep(pix_fmt: str) -> bool:
     return max(c.bits for c in av.VideoFormat(pix_fmt).components) > 8
 
 
-def _to_tensor(frame: av.VideoFrame) -> torch.Tensor:
-    """A decoded frame -> (3, H, W) float32 RGB in [0, 1]; > 8-bit sources go through rgb48le to keep precision."""
+def _to_tensor(frame: av.VideoFrame, compact: bool = False) -> torch.Tensor:
+    """A decoded frame -> (3, H, W) float32 RGB in [0, 1]; > 8-bit sources go through rgb48le to
+    keep precision. ``compact``: 8-bit sources stay (3, H, W) uint8 (a quarter of the memory)."""
     if _is_deep(frame.format.name):
         rgb, scale = frame.to_ndarray(format="rgb48le"), 65535.0
     else:
         rgb, scale = frame.to_ndarray(format="rgb24"), 255.0
+        if compact:
+            return torch.from_numpy(np.ascontiguousarray(rgb.transpose(2, 0, 1)))
     chw = np.ascontiguousarray(rgb.transpose(2, 0, 1), dtype=np.float32)
     chw /= scale
     return torch.from_numpy(chw)
@@ -78,17 +85,19 @@ class VideoReader:
     """Decode the first video stream of a file, one frame at a time.
 
     Opening validates the file (exists, decodable container, has a video stream) and fills
-    :attr:`info`; iterating yields frames in order, each a (3, H, W) float32 RGB tensor in [0, 1].
-    A reader streams its frames once: open a new one to read the clip again. Use it as a context
-    manager (or call :meth:`close`) to release the file.
+    :attr:`info`; iterating yields frames in order, each a (3, H, W) float32 RGB tensor in [0, 1]
+    (with ``compact``, 8-bit sources as (3, H, W) uint8: see :func:`sfb_video.imageio.as_float`). A reader streams
+    its frames once: open a new one to read the clip again. Use it as a context manager (or call
+    :meth:`close`) to release the file.
 
     Raises:
         SfbError: at opening, for a missing or undecodable file or one with no video stream;
             while iterating, for a decode error or a stream that yields no frame at all.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, compact: bool = False) -> None:
         path = Path(path)
+        self._compact = compact
         if not path.is_file():
             raise SfbError(f"not a video file: {path}" if path.exists() else f"video not found: {path}")
         try:
@@ -133,7 +142,7 @@ class VideoReader:
                 break
             except (av.FFmpegError, OSError) as e:
                 raise SfbError(f"cannot decode frame {count} of {self.info.path} ({_reason(e)})") from e
-            yield _to_tensor(frame)
+            yield _to_tensor(frame, self._compact)
             count += 1
         if count == 0:
             raise SfbError(f"{self.info.path} has no frames")
@@ -156,7 +165,7 @@ class VideoReader:
 class VideoWriter(AtomicOutput):
     """Encode frames to an H.264 (libx264, yuv420p) ``.mp4``, atomically.
 
-    Frames go to a hidden temporary file in the same folder (``.<name>.<random>.tmp.mp4``) that
+    Frames go to a hidden temporary file in the same folder (:func:`sfb_video.atomic.temporary_sibling`) that
     :meth:`close` renames onto ``path``, so an interrupted run never leaves a half-written ``path``
     and an existing file there is only replaced by a complete one. As a context manager it calls
     :meth:`close` on success and :meth:`abort` on any exception, KeyboardInterrupt included.
@@ -165,7 +174,7 @@ class VideoWriter(AtomicOutput):
     and/or row, so the file is then (width + 1) and/or (height + 1) pixels large.
 
     Args:
-        path: the output file; must end in ``.mp4``. Missing parent folders are created.
+        path: the output file; must end in ``.mp4``, in a folder that exists.
         fps: frames per second, stored as a fraction (29.97 as 30000/1001).
         width, height: the size of the frames that :meth:`write` will get.
         crf: x264 constant rate factor, 0 (lossless) to 51; 18 is visually lossless.
@@ -190,20 +199,15 @@ class VideoWriter(AtomicOutput):
         self.width, self.height = width, height
         self.frames_written = 0
         self._container: av.container.OutputContainer | None = None
-        self._tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp.mp4"
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            # FFmpeg only creates its file at the first frame: creating it here reports an unwritable
-            # folder now. O_EXCL with mode 0o666 (not mkstemp's 0o600) gives the permissions of any new file.
-            os.close(os.open(self._tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-        except OSError as e:
-            raise SfbError(f"cannot write a video in folder {path.parent} ({e.strerror or e})") from e
+        # FFmpeg only creates its file at the first frame: creating it here reports an unwritable
+        # folder now.
+        self._tmp = temporary_sibling(path, ".mp4")
         try:
             self._container = av.open(str(self._tmp), "w", format="mp4")
             self._stream = self._container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
             self._stream.width, self._stream.height = width + width % 2, height + height % 2
             self._stream.pix_fmt = "yuv420p"
-            self._stream.options = {"crf": str(crf)}
+            self._stream.options = {"crf": str(crf)} | (_LARGE_FRAME_OPTIONS if width * height > _LARGE_FRAME else {})
         except (av.FFmpegError, OSError) as e:
             self.abort()
             raise SfbError(f"cannot start encoding {path} ({_reason(e)})") from e
@@ -226,7 +230,8 @@ class VideoWriter(AtomicOutput):
         try:
             self._container.mux(self._stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), "rgb24")))
         except (av.FFmpegError, OSError) as e:
-            raise SfbError(f"cannot encode frame {self.frames_written} of {self.path} ({_reason(e)})") from e
+            self.abort()
+            raise OutputError(f"cannot encode frame {self.frames_written} of {self.path} ({_reason(e)})") from None
         self.frames_written += 1
 
     def close(self) -> None:
@@ -247,8 +252,10 @@ class VideoWriter(AtomicOutput):
             os.replace(self._tmp, self.path)
         except BaseException as e:
             self.abort()
-            if isinstance(e, av.FFmpegError | OSError):
-                raise SfbError(f"cannot finish writing {self.path} ({_reason(e)})") from e
+            if isinstance(e, OSError):
+                raise output_error(self.path, e) from None
+            if isinstance(e, av.FFmpegError):
+                raise OutputError(f"cannot finish writing {self.path} ({_reason(e)})") from None
             raise
 
     def abort(self) -> None:

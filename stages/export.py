@@ -10,28 +10,57 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
+from sfb_video.atomic import atomic_write_bytes
 from sfb_video.config import Config
+from sfb_video.crop import Box
 from sfb_video.export import motion_record, write_glb, write_obj
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import matrix_to_axis_angle
-from sfb_video.imageio import atomic_write_bytes
+from sfb_video.imageio import as_float
 from sfb_video.model.formation import exposure_times
 from sfb_video.recording import Recorder
-from sfb_video.results import FrameResult, load_result, result_path
+from sfb_video.results import FrameResult, load_result
+from sfb_video.run_folder import BEST_MESH, MESHES, RECORDING, TSR_VIDEO, ensure_folder, frame_path, mesh_path
 from sfb_video.video import VideoWriter
 from stages.background import FrameWithBackground
 from stages.detect import difference_mask
 
-STEPS_PER_SUBFRAME = 4
-"""Poses averaged into each rendered sub-frame: enough for the blur within 1/N of an exposure."""
+
+class Pasted(Sequence[torch.Tensor]):
+    """Full frames, each the input frame with one patch pasted into a box; made one at a time
+    when asked for, so that N sub-frames of a large frame are never all in memory.
+
+    Args:
+        frame: (3, H, W) the input frame, uint8 or float32 in [0, 1]; the frames come out in
+            its dtype (uint8 keeps a 4K frame at 25 MB).
+        patches: (N, 3, h, w) float32 in [0, 1], what replaces the box in each frame.
+        box: (x, y, w, h) where.
+    """
+
+    def __init__(self, frame: torch.Tensor, patches: torch.Tensor, box: Box) -> None:
+        if frame.dtype == torch.uint8:
+            patches = patches.mul(255).clamp_(0, 255).round_().to(torch.uint8)
+        self.frame, self.patches, self.box = frame, patches, box
+
+    def __len__(self) -> int:
+        return self.patches.shape[0]
+
+    def __getitem__(self, k: int) -> torch.Tensor:  # type: ignore[override]
+        if not -len(self) <= k < len(self):
+            raise IndexError(k)
+        x, y, w, h = self.box
+        full = self.frame.clone()
+        full[:, y : y + h, x : x + w] = self.patches[k]
+        return full
 
 
 @dataclass(frozen=True)
@@ -40,30 +69,43 @@ class Rendered:
 
     Attributes:
         reconstruction: (3, H, W) I_hat: the frame with the blurred model inside the crop box.
-        subframes: (N, 3, H, W) the N sharp sub-frames.
+        subframes: N full frames (3, H, W), the sharp sub-frames, made one at a time.
+        Both in the dtype the frame is kept in (uint8 or float32, :func:`as_float`).
     """
 
     reconstruction: torch.Tensor
-    subframes: torch.Tensor
+    subframes: Pasted
+
+
+def _resize(images: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """(..., 3, h, w) images resized to ``size`` (width, height), bilinear with antialiasing."""
+    if images.shape[-2:] == (size[1], size[0]):
+        return images
+    batch = images.reshape(-1, *images.shape[-3:])
+    out = F.interpolate(batch, size=(size[1], size[0]), mode="bilinear", antialias=True, align_corners=False)
+    return out.reshape(*images.shape[:-2], size[1], size[0])
 
 
 def render_frame(
     frame: FrameWithBackground, result: FrameResult, camera: PinholeCamera, n: int, config: Config
 ) -> Rendered:
-    """Render ``result`` into its crop box at native resolution and paste it into the frame.
+    """Render ``result`` into its crop box and paste it into the frame.
 
     Outside the box the input frame is kept (so other movers stay as they were); inside it the
-    background with the model composited over it replaces the streak.
+    background with the model composited over it replaces the streak. A box wider than
+    ``render.export_max_width`` is rendered at that width and the object scaled up onto it.
     """
     x, y, w, h = result.crop_box
-    box_camera = camera.crop(x, y, w, h, w, h)
-    patch_bg = frame.background[:, y : y + h, x : x + w]
-    patches = result.state.render_subframes(box_camera, patch_bg, n, STEPS_PER_SUBFRAME, config.render)
-    frames = frame.image.expand(n, -1, -1, -1).clone()
-    frames[:, :, y : y + h, x : x + w] = patches
-    reconstruction = frame.image.clone()
-    reconstruction[:, y : y + h, x : x + w] = patches.mean(0)
-    return Rendered(reconstruction, frames)
+    scale = min(1.0, config.render.export_max_width / w)
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    patch_bg = as_float(frame.background_pixels[:, y : y + h, x : x + w])
+    small_bg = _resize(patch_bg, size)
+    patches = result.state.render_subframes(camera.crop(x, y, w, h, *size), small_bg, n, config.render)
+    if size != (w, h):
+        # Only the object is scaled up; the background keeps the frame's own pixels.
+        patches = patch_bg + _resize(patches - small_bg, (w, h))
+    reconstruction = Pasted(frame.pixels, patches.mean(0, keepdim=True), result.crop_box)[0]
+    return Rendered(reconstruction, Pasted(frame.pixels, patches, result.crop_box))
 
 
 def trajectory_rows(
@@ -183,18 +225,19 @@ def export_frames(
     done = Exported()
     trajectory: list[np.ndarray] = []
     best_loss = math.inf
+    ensure_folder(folder / MESHES)
     with (
-        VideoWriter(folder / "tsr.mp4", fps * n, camera.width, camera.height) as video,
-        Recorder(folder / "recording.rrd", camera, name) as recorder,
+        VideoWriter(folder / TSR_VIDEO, fps * n, camera.width, camera.height) as video,
+        Recorder(folder / RECORDING, camera, name) as recorder,
     ):
         for frame in frames:
-            recorder.log_frame(frame.index, frame.image, frame.background)
-            mask = difference_mask(frame.image, frame.background, config.detect)
+            recorder.log_frame(frame.index, frame.pixels, frame.background_pixels)
+            mask = difference_mask(frame.pixels, frame.background_pixels, config.detect)
             recorder.log_detection(frame.index, detections.get(frame.index), mask)
-            path = result_path(folder, frame.index)
+            path = frame_path(folder, frame.index)
             if not path.is_file():
                 for _ in range(n):
-                    video.write(frame.image)
+                    video.write(frame.pixels)
                 continue
             result = load_result(path)
             rendered = render_frame(frame, result, camera, n, config)
@@ -208,7 +251,7 @@ def export_frames(
             recorder.log_masks(frame.index, source, result.crop_box, result.masks, n)
             trajectory.append(result.state.motion.at(exposure_times(n))[1].numpy())
             recorder.log_trajectory(np.concatenate(trajectory))
-            write_glb(result.state, folder / "meshes" / f"frame_{frame.index:05d}.glb")
+            write_glb(result.state, mesh_path(folder, frame.index))
             rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
             done.rows += rows
             done.fits[frame.index] = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)
@@ -216,5 +259,5 @@ def export_frames(
                 best_loss, done.best = result.losses["image"], frame.index
         done.video_frames = video.frames_written
     if done.best is not None:
-        write_obj(load_result(result_path(folder, done.best)).state, folder / "meshes" / "best", name="mesh")
+        write_obj(load_result(frame_path(folder, done.best)).state, ensure_folder(folder / BEST_MESH), name="mesh")
     return done

@@ -2,10 +2,8 @@
 
 A track's first frame starts cold (every prototype, full iterations). Each next frame starts
 warm from the previous frame's mesh, texture and motion, its start pose predicted by continuing
-that motion across the gap between the two exposures. One frame cannot tell which end of its
-streak came first (DeFMO's sub-frame masks order a frame, but may run either way themselves);
-:func:`join` picks the directions that make consecutive frames meet end to start, and that order
-between frames wins over DeFMO's.
+that motion across the gap between the two exposures (:mod:`stages.track` decides which frames
+form a track and in which time direction they run).
 """
 
 from __future__ import annotations
@@ -19,29 +17,11 @@ from sfb_video.config import Config
 from sfb_video.crop import make_crop
 from sfb_video.fitter import WarmStart, fit_frame
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.geometry.rotation import axis_angle_to_matrix
-from sfb_video.model.motion import Motion
+from sfb_video.model.motion import continue_motion
 from sfb_video.results import FrameResult
 from stages.background import FrameWithBackground
-from stages.detect import Detection, Prediction
+from stages.detect import Detection
 from stages.masks import MaskSource, orient_masks
-
-
-def continue_motion(motion: Motion, frames_ahead: int, exposure_fraction: float) -> Motion:
-    """The motion of the exposure ``frames_ahead`` frames later, at constant velocity and spin.
-
-    One frame interval is 1 / ``exposure_fraction`` exposures, so the next exposure starts that
-    many multiples of the exposure's own translation and rotation after this one's start.
-    """
-    k = frames_ahead / exposure_fraction
-    rot0 = axis_angle_to_matrix(k * motion.omega) @ motion.rot0
-    return Motion(motion.x0 + k * motion.dx, motion.dx, rot0, motion.omega)
-
-
-def predict(motion: Motion, camera: PinholeCamera) -> Prediction:
-    """Where ``motion``'s streak appears in ``camera``: the centre of its middle, its diameter."""
-    uv, depth = camera.project(motion.x0 + 0.5 * motion.dx)
-    return Prediction((float(uv[0]), float(uv[1])), float(camera.fy / depth))
 
 
 def fit_detection(
@@ -70,7 +50,7 @@ def fit_detection(
     Raises:
         NoObjectError: when the crop around the detection shows no difference after all.
     """
-    image, background = frame.image.to(device), frame.background.to(device)
+    image, background = frame.pixels.to(device), frame.background_pixels.to(device)
     crop = make_crop(image, background, detection.box, camera, config.crop, detection.mask.to(device))
     warm = None
     if previous is not None:
@@ -109,31 +89,3 @@ def fit_detection(
         masks=None if subframe_masks is None else subframe_masks.cpu(),
         masks_reversed=flipped,
     )
-
-
-def _gap(previous: FrameResult, current: FrameResult, camera: PinholeCamera, exposure_fraction: float) -> float:
-    predicted = continue_motion(previous.state.motion, current.index - previous.index, exposure_fraction)
-    uv = camera.project(torch.stack((predicted.x0, current.state.motion.x0)))[0]
-    return float((uv[0] - uv[1]).norm())
-
-
-def join(
-    previous: FrameResult,
-    current: FrameResult,
-    camera: PinholeCamera,
-    exposure_fraction: float,
-    may_flip_previous: bool,
-) -> tuple[FrameResult, FrameResult]:
-    """Choose the time directions of two frames of one track so that they join end to start.
-
-    The current frame's start should be where the previous frame's motion, continued across the
-    gap, puts it (in image pixels, where the fit is surest). The previous frame may be reversed
-    too when nothing before it fixed its direction (the first frame of a track).
-
-    Returns:
-        previous and current, each possibly reversed.
-    """
-    options = [(p, c) for p in (previous, previous.reversed()) for c in (current, current.reversed())]
-    if not may_flip_previous:
-        options = options[:2]
-    return min(options, key=lambda pc: _gap(pc[0], pc[1], camera, exposure_fraction))

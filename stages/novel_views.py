@@ -21,6 +21,7 @@ from sfb_video.imageio import write_image
 from sfb_video.model.scene import ObjectState
 from sfb_video.render import MeshRenderer
 from sfb_video.results import load_results
+from sfb_video.run_folder import NOVEL_VIEWS, ensure_folder, novel_view_path
 from sfb_video.video import VideoWriter
 
 SIZE = (320, 240)
@@ -65,8 +66,8 @@ def write_novel_views(folder: Path, config: Config, frames: list[int], views: in
     written = []
     for index in frames:
         images = turntable(results[index].state, views, config)
-        path = folder / "novel_views" / f"frame_{index:05d}.mp4"
-        path.parent.mkdir(parents=True, exist_ok=True)
+        ensure_folder(folder / NOVEL_VIEWS)
+        path = novel_view_path(folder, index)
         with VideoWriter(path, 24.0, SIZE[0], SIZE[1]) as video:
             for image in images:
                 video.write(image)

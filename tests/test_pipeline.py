@@ -19,15 +19,14 @@ import torch
 import trimesh
 from rerun.chunk import RrdReader
 
+import stages.track
 from sfb_video.cli import main
 from sfb_video.config import Config, load_config
 from sfb_video.demo import demo_clip, demo_config, score_run, write_clip_video
+from sfb_video.model.motion import continue_motion
 from sfb_video.results import load_results
 from sfb_video.synth import SyntheticClip
-from sfb_video.video import VideoReader
-from stages.fit import continue_motion
-from stages.masks import choose_masks
-from stages.process import FrameStatus, ProcessOptions, prepare_folder, process_clip, track_and_fit
+from stages.process import ProcessOptions, process_clip
 
 CPU = torch.device("cpu")
 
@@ -139,23 +138,24 @@ def test_recording_holds_the_expected_entities(run: Run) -> None:
     assert tsr_rows == run.config.video.tsr * run.config.demo.frames
 
 
-def test_an_interrupted_run_resumes_from_the_last_finished_frame(run: Run, tmp_path: Path) -> None:
+def test_an_interrupted_run_resumes_from_the_last_finished_frame(
+    run: Run, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     out = tmp_path / "run"
+    real_fit = stages.track.fit_detection
     fitted: list[int] = []
 
-    def stop_after_two(status: FrameStatus, result: object) -> None:
-        fitted.append(status.index)
+    def stop_at_the_third(*args: object, **kwargs: object) -> object:
         if len(fitted) == 2:
             raise KeyboardInterrupt
+        fitted.append(0)
+        return real_fit(*args, **kwargs)
 
     options = ProcessOptions(video=run.video, out=out)
-    camera = run.clip.camera
-    with VideoReader(run.video) as reader:
-        info = reader.info
-    masks = choose_masks("diff", None, run.config.crop, CPU, log=None)
-    prepare_folder(options, run.config, masks)
-    with pytest.raises(KeyboardInterrupt):
-        track_and_fit(options, run.config, info, camera, CPU, masks, stop_after_two)
+    with monkeypatch.context() as patch:
+        patch.setattr(stages.track, "fit_detection", stop_at_the_third)
+        with pytest.raises(KeyboardInterrupt):
+            process_clip(options, run.config, CPU, quiet=True)
     assert not (out / "summary.json").exists()
     saved = sorted(p.name for p in (out / "frames").iterdir())
     assert saved == ["frame_00000.pt", "frame_00001.pt"]

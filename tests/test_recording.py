@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -74,7 +75,7 @@ def inputs() -> Inputs:
     background = torch.rand(3, CAMERA.height, CAMERA.width, generator=gen)
     render = load_config("fast").render
     reconstruction = state.render_blurred(CAMERA, background, N_SUB * 2, render)
-    subframes = state.render_subframes(CAMERA, background, N_SUB, 2, render)
+    subframes = state.render_subframes(CAMERA, background, N_SUB, dataclasses.replace(render, steps_per_subframe=2))
     mask = torch.zeros(CAMERA.height, CAMERA.width, dtype=torch.bool)
     mask[10:19, 20:32] = True
     return Inputs(
@@ -371,7 +372,7 @@ def test_same_inputs_give_the_same_recording(recorded: Recorded, tmp_path: Path)
 
 
 def test_the_file_appears_only_on_close(inputs: Inputs, tmp_path: Path) -> None:
-    path = tmp_path / "out" / "recording.rrd"
+    path = tmp_path / "recording.rrd"
     rec = Recorder(path, CAMERA, "clip")
     rec.log_frame(0, inputs.images[0], inputs.background)
     (tmp,) = path.parent.iterdir()
@@ -427,6 +428,6 @@ def test_read_only_folder_is_a_one_line_error(tmp_path: Path) -> None:
 def test_unwritable_path_is_a_one_line_error(tmp_path: Path) -> None:
     # A folder that is a file: fails for root too, through the same path as a read-only folder.
     (tmp_path / "file").write_text("")
-    with pytest.raises(SfbError, match="cannot write the recording") as info:
+    with pytest.raises(SfbError, match=r"cannot write .*recording\.rrd: Not a directory") as info:
         Recorder(tmp_path / "file" / "recording.rrd", CAMERA, "clip")
     assert "\n" not in str(info.value)

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sfb_video.atomic import atomic_write_bytes
 from sfb_video.evaluation.runner import MODES, FrameRow
-from sfb_video.imageio import atomic_write_bytes
 
 MEASURES = {
     "tiou": ("TIoU", "{:.3f}"),
@@ -79,6 +79,10 @@ def _csv(records: list[dict]) -> bytes:
     return out.getvalue().encode()
 
 
+TABLE = "table.md"
+"""The Markdown table of an evaluation's output folder (beside sequences.csv and frames.csv)."""
+
+
 def write_tables(folder: Path, rows: list[FrameRow], note: str = "") -> None:
     """Write frames.csv (every frame), sequences.csv and table.md (per sequence and total), atomically.
 
@@ -90,4 +94,4 @@ def write_tables(folder: Path, rows: list[FrameRow], note: str = "") -> None:
     records = summarise(rows)
     atomic_write_bytes(folder / "frames.csv", _csv([dataclasses.asdict(r) for r in rows]))
     atomic_write_bytes(folder / "sequences.csv", _csv(records))
-    atomic_write_bytes(folder / "table.md", (note + markdown(records)).encode())
+    atomic_write_bytes(folder / TABLE, (note + markdown(records)).encode())

@@ -22,6 +22,7 @@ import torch
 
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import (
+    axis_angle_to_matrix,
     axis_angle_to_quaternion,
     exposure_rotations,
     matrix_to_axis_angle,
@@ -56,6 +57,17 @@ class Motion:
 
     def to(self, device: torch.device | str) -> Motion:
         return Motion(self.x0.to(device), self.dx.to(device), self.rot0.to(device), self.omega.to(device))
+
+
+def continue_motion(motion: Motion, frames_ahead: int, exposure_fraction: float) -> Motion:
+    """The motion of the exposure ``frames_ahead`` frames later, at constant velocity and spin.
+
+    One frame interval is 1 / ``exposure_fraction`` exposures, so the next exposure starts that
+    many multiples of the exposure's own translation and rotation after this one's start.
+    """
+    k = frames_ahead / exposure_fraction
+    rot0 = axis_angle_to_matrix(k * motion.omega) @ motion.rot0
+    return Motion(motion.x0 + k * motion.dx, motion.dx, rot0, motion.omega)
 
 
 @dataclass(frozen=True)

@@ -27,10 +27,11 @@ import cv2
 import numpy as np
 import torch
 
+from sfb_video.atomic import atomic_write_bytes
 from sfb_video.checks import SfbError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
-from sfb_video.imageio import atomic_write_bytes, to_uint8
+from sfb_video.imageio import to_uint8
 from sfb_video.synth.clip import (
     FrameTruth,
     SyntheticClip,
@@ -175,6 +176,8 @@ def write_scene_json(root: Path | str, scene: SyntheticScene, records: list[dict
 
 
 def _write_static(root: Path, scene: SyntheticScene) -> None:
+    for folder in ("frames", "gt/subframes", "gt/masks"):
+        (root / folder).mkdir(parents=True, exist_ok=True)
     write_png(root / "background.png", scene.background)
     write_obj(root / "gt", scene.mesh)
 

@@ -36,7 +36,7 @@ def test_demo_processes_a_generated_clip_and_scores_it(tmp_path: Path, capsys: p
     ("extra", "message"),
     [
         (["--set", "render.bogus=1"], "unknown config key"),
-        (["--config", "nope"], "not found"),
+        (["--config", "nope"], "no config preset 'nope'"),
         (["--device", "cuda:7"] if not torch.cuda.is_available() else ["--device", "tpu"], "device"),
     ],
 )

@@ -64,7 +64,7 @@ def test_the_table_is_complete_and_the_config_kept(evaluated: tuple[Path, Path])
 def test_an_existing_output_is_not_overwritten(evaluated: tuple[Path, Path], capsys: pytest.CaptureFixture) -> None:
     root, out = evaluated
     assert main(["eval", "--dataset", "tbd3d", "--root", str(root), "--out", str(out), *QUICK]) == 2
-    assert "already exists" in capsys.readouterr().err
+    assert "holds a finished eval output; pass --overwrite" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

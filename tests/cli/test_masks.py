@@ -72,7 +72,9 @@ def test_a_run_does_not_resume_with_other_masks(
 ) -> None:
     out = tmp_path / "run"
     assert main(["process", str(clip), "--out", str(out), "--masks", "diff", *THREE]) == 0
-    (out / "summary.json").unlink()  # as if it had stopped before the end
+    marker = json.loads((out / "run.json").read_text())
+    (out / "run.json").write_text(json.dumps(marker | {"finished": False}))  # as if it had stopped before the end
+    (out / "summary.json").unlink()
     assert main(["process", str(clip), "--out", str(out), "--defmo-weights", str(defmo_weights), *THREE]) == 2
     assert "mask source" in capsys.readouterr().err
 

@@ -8,7 +8,7 @@ import av
 import numpy as np
 import pytest
 
-import stages.process
+import stages.track
 from sfb_video.cli import main
 from sfb_video.config import load_config
 from sfb_video.demo import demo_clip, demo_config
@@ -114,7 +114,7 @@ def test_output_folder_that_is_not_a_run_is_left_alone(tmp_path: Path, capsys: p
     out.mkdir()
     (out / "thesis.tex").write_text("precious")
     assert main(["process", str(path), "--out", str(out), "--overwrite", *FAST]) == 2
-    _one_line_error(capsys, "not an sfb-video run")
+    _one_line_error(capsys, "not an sfb-video output", "never replaced")
     assert (out / "thesis.tex").read_text() == "precious"
 
 
@@ -123,7 +123,7 @@ def test_ctrl_c_exits_130_and_keeps_finished_frames_for_resuming(
 ) -> None:
     config = demo_config(load_config("fast"))
     path = _write(tmp_path / "clip.mp4", list(demo_clip(config).frames))
-    real_fit = stages.process.fit_detection
+    real_fit = stages.track.fit_detection
     calls: list[int] = []
 
     def fit_then_interrupt(*args: object, **kwargs: object) -> object:
@@ -132,7 +132,7 @@ def test_ctrl_c_exits_130_and_keeps_finished_frames_for_resuming(
             raise KeyboardInterrupt
         return real_fit(*args, **kwargs)
 
-    monkeypatch.setattr(stages.process, "fit_detection", fit_then_interrupt)
+    monkeypatch.setattr(stages.track, "fit_detection", fit_then_interrupt)
     out = tmp_path / "o"
     args = ["process", str(path), "--out", str(out), *FAST, "--set", "video.exposure_fraction=0.8"]
     assert main(args) == 130

@@ -11,10 +11,10 @@ from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.geometry.rotation import axis_angle_to_matrix, rotation_angle_deg
-from sfb_video.model.motion import Motion
+from sfb_video.model.motion import Motion, continue_motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.results import FrameResult, load_result, save_result
-from stages.fit import continue_motion, join, predict
+from stages.track import join, predict
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
 

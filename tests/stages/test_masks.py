@@ -18,8 +18,9 @@ from sfb_video.results import FrameResult
 from sfb_video.synth import SyntheticClip
 from stages.background import FrameWithBackground
 from stages.detect import Detection
-from stages.fit import fit_detection, join
+from stages.fit import fit_detection
 from stages.masks import MaskSource, choose_masks, mask_centroids, orient_masks
+from stages.track import join
 
 CPU = torch.device("cpu")
 CROP = CropConfig()

@@ -12,7 +12,6 @@ import torch
 
 from sfb_video.checks import SfbError
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip, load_clip, save_clip, write_clip
-from sfb_video.synth.io import atomic_write_bytes
 
 SPEC = ClipSpec(
     width=96,
@@ -80,11 +79,3 @@ def test_incomplete_folder_is_refused(tmp_path: Path) -> None:
     (tmp_path / "frames").mkdir()
     with pytest.raises(SfbError, match=r"gt\.json"):
         load_clip(tmp_path)
-
-
-def test_atomic_write_replaces_whole_files(tmp_path: Path) -> None:
-    target = tmp_path / "sub" / "file.bin"
-    atomic_write_bytes(target, b"first version")
-    atomic_write_bytes(target, b"second")
-    assert target.read_bytes() == b"second"
-    assert [p.name for p in target.parent.iterdir()] == ["file.bin"]

@@ -1,0 +1,200 @@
+"""Tracking: which blob of each frame is the object, which frames form one track, and which way
+time runs through them.
+
+Frames stream through with their difference masks. Each frame's object is looked for near
+where the track's last fit predicts it (its motion continued across the gap between exposures,
+:func:`predict`); nothing near starts a new track. Each detection is fitted (warm from the
+track's last frame) and saved into the run folder as soon as it is done, which is what a
+resumed run reuses. One frame cannot tell which end of its streak came first (DeFMO's sub-frame
+masks order a frame, but may run either way themselves): :func:`join` picks the directions that
+make consecutive frames meet end to start, and that order between frames wins over DeFMO's.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from sfb_video.config import Config
+from sfb_video.fitter import NoObjectError
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.model.motion import Motion, continue_motion
+from sfb_video.results import FrameResult, load_result, save_result
+from sfb_video.run_folder import frame_path, saved_frames
+from stages.background import FrameWithBackground
+from stages.detect import Detection, Prediction, choose_blob, difference_mask, moving_mask
+from stages.fit import fit_detection
+from stages.masks import MaskSource
+
+
+@dataclass(frozen=True)
+class FrameStatus:
+    """What happened to one frame: ``fitted``, ``no_object`` or ``failed`` (with the reason)."""
+
+    index: int
+    status: str
+    box: tuple[int, int, int, int] | None = None
+    note: str = ""
+
+
+StepReport = Callable[[FrameStatus, FrameResult | None], None]
+
+
+def predict(motion: Motion, camera: PinholeCamera) -> Prediction:
+    """Where ``motion``'s streak appears in ``camera``: the centre of its middle, its diameter."""
+    uv, depth = camera.project(motion.x0 + 0.5 * motion.dx)
+    return Prediction((float(uv[0]), float(uv[1])), float(camera.fy / depth))
+
+
+def _gap(previous: FrameResult, current: FrameResult, camera: PinholeCamera, exposure_fraction: float) -> float:
+    predicted = continue_motion(previous.state.motion, current.index - previous.index, exposure_fraction)
+    uv = camera.project(torch.stack((predicted.x0, current.state.motion.x0)))[0]
+    return float((uv[0] - uv[1]).norm())
+
+
+def join(
+    previous: FrameResult,
+    current: FrameResult,
+    camera: PinholeCamera,
+    exposure_fraction: float,
+    may_flip_previous: bool,
+) -> tuple[FrameResult, FrameResult]:
+    """Choose the time directions of two frames of one track so that they join end to start.
+
+    The current frame's start should be where the previous frame's motion, continued across the
+    gap, puts it (in image pixels, where the fit is surest). The previous frame may be reversed
+    too when nothing before it fixed its direction (the first frame of a track).
+
+    Returns:
+        previous and current, each possibly reversed.
+    """
+    options = [(p, c) for p in (previous, previous.reversed()) for c in (current, current.reversed())]
+    if not may_flip_previous:
+        options = options[:2]
+    return min(options, key=lambda pc: _gap(pc[0], pc[1], camera, exposure_fraction))
+
+
+def with_neighbours(
+    frames: Iterator[FrameWithBackground], config: Config
+) -> Iterator[tuple[FrameWithBackground, torch.Tensor, list[torch.Tensor]]]:
+    """Each frame with its difference mask and those of the frames two before and two after.
+
+    Two frames apart, not one: an FMO's streaks in consecutive frames can overlap (it moves
+    little more than its size while the shutter is open), but never two frames apart, while a
+    slow mover still covers much the same pixels. Where those frames do not exist (a clip's
+    ends, a clip of three frames or fewer), the nearest ones are used instead.
+    """
+    history: deque[torch.Tensor] = deque(maxlen=2)  # masks of frames t - 2 and t - 1
+    ahead: deque[tuple[FrameWithBackground, torch.Tensor]] = deque()  # frame t and up to two after
+
+    def emit() -> tuple[FrameWithBackground, torch.Tensor, list[torch.Tensor]]:
+        frame, mask = ahead.popleft()
+        after = [m for _, m in ahead]
+        near = ([history[0]] if history else []) + ([after[-1]] if after else [])
+        history.append(mask)
+        return frame, mask, near
+
+    for frame in frames:
+        ahead.append((frame, difference_mask(frame.pixels, frame.background_pixels, config.detect)))
+        if len(ahead) == 3:
+            yield emit()
+    while ahead:
+        yield emit()
+
+
+def follow(
+    index: int,
+    mask: torch.Tensor,
+    neighbours: list[torch.Tensor],
+    previous: FrameResult | None,
+    may_flip: bool,
+    camera: PinholeCamera,
+    config: Config,
+) -> tuple[Detection | None, FrameResult | None]:
+    """Find the object of frame ``index``, near where the track's last frame predicts it.
+
+    The prediction continues ``previous``'s motion; when its time direction is not known yet
+    (``may_flip``: the first frame of a track), both directions are tried and the one whose
+    prediction lands nearer its detection is kept.
+
+    Returns:
+        the detection (None when there is no object) and ``previous`` in the direction that
+        predicted it (None when there was no track or the object was found away from it).
+    """
+    options = [] if previous is None else [previous, previous.reversed()] if may_flip else [previous]
+    moving = moving_mask(mask, neighbours, config.detect)
+    best: tuple[float, Detection, FrameResult] | None = None
+    for option in options:
+        prediction = predict(continue_motion(option.state.motion, 1, config.video.exposure_fraction), camera)
+        found = choose_blob(index, moving, prediction, config.detect)
+        if found is not None:
+            x, y, w, h = found.box
+            distance = math.hypot(x + w / 2 - prediction.centre[0], y + h / 2 - prediction.centre[1])
+            if best is None or distance < best[0]:
+                best = (distance, found, option)
+    if best is not None:
+        return best[1], best[2]
+    return choose_blob(index, moving, None, config.detect), None
+
+
+def track_and_fit(
+    frames: Iterator[FrameWithBackground],
+    folder: Path,
+    camera: PinholeCamera,
+    config: Config,
+    device: torch.device,
+    masks: MaskSource | None = None,
+    report: StepReport | None = None,
+) -> list[FrameStatus]:
+    """Detect and fit every frame, saving each fit into the run ``folder`` as soon as it is done;
+    fits already saved there are reused.
+
+    ``masks`` gives each fit its sub-frame masks (None: the difference mask).
+
+    Returns:
+        the status of every frame read.
+    """
+    saved = saved_frames(folder)
+    statuses: list[FrameStatus] = []
+    previous: FrameResult | None = None  # the last fitted frame of the current track
+    track_length = 0
+    for frame, mask, neighbours in with_neighbours(frames, config):
+        if previous is not None and frame.index - previous.index != 1:
+            previous, track_length = None, 0
+        detection, followed = follow(frame.index, mask, neighbours, previous, track_length == 1, camera, config)
+        if followed is None:
+            previous, track_length = None, 0  # nothing near the prediction: a new track
+        elif followed is not previous:
+            previous = followed  # the track's first frame, now known to run the other way
+            save_result(folder, previous)
+        if detection is None:
+            status, result = FrameStatus(frame.index, "no_object"), None
+        else:
+            loaded = load_result(frame_path(folder, frame.index)) if frame.index in saved else None
+            result = loaded
+            try:
+                if result is None:
+                    start = previous if config.video.warm_start else None
+                    result = fit_detection(frame, detection, camera, config, start, device, masks)
+                status = FrameStatus(frame.index, "fitted", detection.box)
+            except NoObjectError as exc:
+                status, result = FrameStatus(frame.index, "no_object", detection.box, str(exc)), None
+        if result is not None:
+            if previous is not None:
+                before, result = join(previous, result, camera, config.video.exposure_fraction, track_length == 1)
+                if before is not previous:
+                    save_result(folder, before)
+            if result is not loaded:
+                save_result(folder, result)
+            previous, track_length = result, track_length + 1
+        else:
+            previous, track_length = None, 0
+        statuses.append(status)
+        if report is not None:
+            report(status, result)
+    return statuses
