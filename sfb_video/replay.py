@@ -1,0 +1,137 @@
+"""Opening a run's recording in the rerun viewer: a native window, or the web viewer served from
+this machine for machines without a display (a server, a container, SSH).
+
+The viewer is the one installed with this package's rerun-sdk: the binary in its ``rerun_cli``
+package (so a virtual environment need not be activated), else a ``rerun`` on PATH. ``--web``
+runs ``rerun --serve-web``: an HTTP server for the viewer's page and a gRPC server that streams
+the recording to it, in a process group of its own that is stopped with this command, whatever
+stops it (Ctrl-C, SIGTERM).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+from pathlib import Path
+from urllib.parse import quote
+
+from sfb_video.checks import SfbError
+from sfb_video.run_folder import RECORDING
+
+WEB_PORT = 9090
+"""Where the web viewer's page is served (rerun's default)."""
+GRPC_PORT = 9876
+"""Where the recording is streamed to the page (rerun's default)."""
+
+
+def recording_path(run: Path) -> Path:
+    """The recording of a run folder (or ``run`` itself when it is an ``.rrd`` file).
+
+    Raises:
+        SfbError: there is no recording there.
+    """
+    path = run / RECORDING if run.is_dir() else run
+    if not path.is_file():
+        raise SfbError(f"no recording at {path}; run sfb-video process first")
+    return path
+
+
+def viewer_command() -> list[str]:
+    """The command that starts the rerun viewer installed with this Python's rerun-sdk.
+
+    The binary itself, not the ``rerun`` script beside Python: the script runs the binary as a
+    child, which stopping the script would leave running.
+
+    Raises:
+        SfbError: rerun-sdk's viewer is not installed.
+    """
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is not None and spec.origin is not None:
+        binary = Path(spec.origin).parent / ("rerun.exe" if os.name == "nt" else "rerun")
+        if binary.is_file():
+            return [str(binary)]
+    found = shutil.which("rerun")
+    if found is not None:
+        return [found]
+    raise SfbError("the rerun viewer is not installed; pip install rerun-sdk into this environment")
+
+
+def has_display() -> bool:
+    """Whether a native window can open: always on macOS and Windows, with X11 or Wayland on Linux."""
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def _check_port(port: int, bind: str, what: str) -> None:
+    if not 0 < port < 65536:
+        raise SfbError(f"{what} must be a port number from 1 to 65535, got {port}")
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind((bind if bind not in ("0.0.0.0", "::") else "", port))
+        except OSError:
+            raise SfbError(f"port {port} ({what}) is in use; choose another with {what}") from None
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def web_url(host: str, web_port: int, grpc_port: int) -> str:
+    """The address that opens the web viewer on the recording served at ``grpc_port``."""
+    return f"http://{host}:{web_port}/?url=" + quote(f"rerun+http://{host}:{grpc_port}/proxy", safe="")
+
+
+def replay(run: Path, *, web: bool, web_port: int = WEB_PORT, grpc_port: int = GRPC_PORT, bind: str = "0.0.0.0") -> int:
+    """Open the recording of ``run``; with ``web``, serve it until interrupted. Returns the exit status.
+
+    Raises:
+        SfbError: no recording; no display and no ``web``; a port in use.
+    """
+    path = recording_path(run)
+    command = viewer_command()
+    if not web:
+        if not has_display():
+            raise SfbError(
+                "no display here (neither DISPLAY nor WAYLAND_DISPLAY is set); "
+                "use sfb-video replay --web to serve the viewer over HTTP"
+            )
+        return subprocess.call([*command, str(path)])
+    _check_port(web_port, bind, "--web-port")
+    _check_port(grpc_port, bind, "--grpc-port")
+    host = "localhost" if bind in ("0.0.0.0", "::", "127.0.0.1") else bind
+    print(
+        f"serving {path} in rerun's web viewer: open {web_url(host, web_port, grpc_port)}\n"
+        f"(from another machine: use this machine's address, or forward ports {web_port} and {grpc_port}; "
+        "Ctrl-C stops)",
+        flush=True,
+    )
+    server = [*command, "--serve-web", "--bind", bind, "--web-viewer-port", str(web_port), "--port", str(grpc_port)]
+    # The viewer's own log lines (telemetry, analytics notices) would bury the address above.
+    process = subprocess.Popen(
+        [*server, str(path)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    stop_on_sigterm = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        _, err = process.communicate()
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        signal.signal(signal.SIGTERM, stop_on_sigterm)
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGTERM)
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                os.killpg(process.pid, signal.SIGKILL)
+                process.wait()
+    if process.returncode != 0:
+        lines = [line for line in err.splitlines() if "ERROR" in line or "rror" in line] or err.splitlines()[-1:]
+        raise SfbError(f"the rerun web viewer stopped: {lines[-1].strip() if lines else process.returncode}")
+    return 0
