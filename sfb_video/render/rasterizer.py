@@ -1,12 +1,12 @@
 """The fast rasteriser: hard visibility by candidate pairs, a soft band around the silhouette.
 
-Visibility is found without gradient: each face proposes the pixel centres inside its screen
-bounding box, edge functions keep those it covers, and a scatter-min over depth keeps the
-nearest face per pixel. Only then are barycentrics recomputed, with gradient, for the winning
-(pixel, face) pairs. The soft silhouette outside the mesh needs the distance to the silhouette;
-it is the distance to the nearest *contour* edge (an edge between a front- and a back-facing
-face, or on the boundary of an open mesh), so only contour edges propose pixels, within the
-band where exp(-sigma_inv * d^2) exceeds ``band_eps``. Cost follows the object's screen area
+Visibility is found without gradient: each front face lists the pixel centres it covers in
+its scanline spans, and a scatter-min over depth keeps the nearest face per pixel. Only then
+are barycentrics recomputed, with gradient, for the winning (pixel, face) pairs. The soft
+silhouette outside the mesh needs the distance to the silhouette; it is the distance to the
+nearest *contour* edge (an edge between a front- and a back-facing face, or on the boundary of
+an open mesh), so only contour edges propose pixels, within the band where
+exp(-sigma_inv * d^2) exceeds ``band_eps``. Cost follows the object's screen area
 and outline, not (pixels x faces).
 
 Convention: a face is front-facing when its projected corners run clockwise in pixel
