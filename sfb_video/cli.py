@@ -270,12 +270,12 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def _eval_sequences(args: argparse.Namespace) -> list:
     from sfb_video.evaluation.datasets import list_sequences
-    from sfb_video.evaluation.synthetic_set import ensure_set, list_synthetic
+    from sfb_video.evaluation.synthetic_set import SETS, ensure_set, list_synthetic
 
     root = Path(args.root)
-    if args.dataset == "synthetic":
-        ensure_set(root, quiet=args.quiet)
-        sequences = list_synthetic(root)
+    if args.dataset in SETS:
+        ensure_set(root, SETS[args.dataset](), quiet=args.quiet)
+        sequences = list_synthetic(root, args.dataset)
     else:
         sequences = list_sequences(root, args.dataset)
     if args.sequence:
@@ -297,7 +297,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
     if args.max_frames is not None and args.max_frames < 1:
         raise SfbError(f"--max-frames must be at least 1, got {args.max_frames}")
-    modes = MODES if args.mode == "both" else (args.mode,)
+    modes = MODES if args.mode == "all" else (args.mode,)
     out = Path(args.out or f"runs/eval-{args.dataset}")
     record = {
         "dataset": args.dataset,
@@ -389,12 +389,14 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--views", type=int, default=36, help="turntable views per frame")
     export.set_defaults(func=cmd_export)
     evaluate = sub.add_parser("eval", parents=[common], help="score the method on a benchmark dataset")
-    evaluate.add_argument("--dataset", required=True, choices=["tbd", "tbd3d", "falling", "synthetic"])
+    evaluate.add_argument(
+        "--dataset", required=True, choices=["tbd", "tbd3d", "falling", "synthetic", "synthetic-hard"]
+    )
     evaluate.add_argument(
         "--root", required=True, help="the dataset's folder (synthetic: generated there on first use)"
     )
     evaluate.add_argument("--out", help="output folder (default: runs/eval-<dataset>)")
-    evaluate.add_argument("--mode", choices=["per-frame", "video", "both"], default="both")
+    evaluate.add_argument("--mode", choices=["per-frame", "video", "joint", "all"], default="all")
     evaluate.add_argument("--sequence", action="append", help="only this sequence (repeatable)")
     evaluate.add_argument("--max-frames", type=int, help="only the first N frames of each sequence")
     evaluate.set_defaults(func=cmd_eval)

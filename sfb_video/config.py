@@ -37,9 +37,10 @@ def bounded(default: Any, *, ge: float | None = None, gt: float | None = None, l
     return field(default=default, metadata={"ge": ge, "gt": gt, "le": le})
 
 
-def one_of(default: Any, choices: tuple[str, ...]) -> Any:
-    """A text field (or tuple of texts) whose every value must be one of ``choices``."""
-    return field(default=default, metadata={"choices": choices})
+def one_of(default: Any, choices: tuple[str, ...], may_be_empty: bool = False) -> Any:
+    """A text field (or tuple of texts, non-empty unless ``may_be_empty``) whose every value must
+    be one of ``choices``."""
+    return field(default=default, metadata={"choices": choices, "may_be_empty": may_be_empty})
 
 
 class _Checked:
@@ -53,6 +54,8 @@ class _Checked:
             values = value if isinstance(value, tuple) else (value,)
             where = f"{self.SECTION}.{f.name}"
             if "choices" in f.metadata:
+                if value == () and not f.metadata["may_be_empty"]:
+                    raise ConfigError(f"{where} must be a non-empty list, got []")
                 bad = [v for v in values if v not in f.metadata["choices"]]
                 if bad:
                     raise ConfigError(f"{where} must be one of {', '.join(f.metadata['choices'])}; got {bad[0]!r}")
@@ -191,6 +194,48 @@ class FitConfig(_Checked):
 
 
 @dataclass(frozen=True)
+class JointConfig(_Checked):
+    """The joint fit of a window of frames of one track (:mod:`sfb_video.joint`)."""
+
+    SECTION: ClassVar[str] = "joint"
+
+    enabled: bool = True
+    """Refit each window of a track jointly after its single-frame fits (off: the single-frame
+    results are the output, as before the joint fit existed)."""
+    window: int = bounded(6, ge=2)
+    """Frames per window; a track's windows slide by ``window - overlap``."""
+    overlap: int = bounded(2, ge=0)
+    """Frames a window shares with the previous one of its track."""
+    iterations: int = bounded(300, ge=1)
+    """Adam steps of a window's joint fit."""
+    path_steps: int = bounded(300, ge=0)
+    """Steps fitting the trajectory to the seeds' streak ends before the joint fit (no rendering)."""
+    motion: str = one_of("auto", ("auto", "constant_velocity", "constant_acceleration", "bounce"))
+    """The trajectory's model; ``auto`` tries constant acceleration and, where the seeds leave
+    one smooth path, a bounce, and keeps the lower joint loss."""
+    bounce_residual: float = bounded(0.15, gt=0)
+    """``auto`` motion: a bounce is tried when one smooth path passes farther than this from a
+    seed's streak end, in apparent object diameters."""
+    prototypes: tuple[str, ...] = one_of(("capsule",), PROTOTYPE_NAMES, may_be_empty=True)
+    """Fresh prototypes that compete with the single-frame fits' mesh on a track's first window
+    (the lowest joint L_I after the trial steps goes on); empty: keep the seeds' mesh."""
+    trial_fraction: float = bounded(0.2, gt=0, le=1)
+    """The share of ``iterations`` every competing shape is fitted before the choice."""
+    learn_exposure: bool = True
+    """Learn the exposure fraction (shared by the window) from ``video.exposure_fraction``;
+    off keeps that value."""
+    lr_path: float = bounded(0.02, gt=0)
+    """Adam's step size for the trajectory's anchors (in reference diameters and log size)."""
+    lr_exposure: float = bounded(0.05, gt=0)
+    """Adam's step size for the exposure fraction's logit."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.overlap >= self.window:
+            raise ConfigError(f"joint.overlap must be less than joint.window, got {self.overlap} >= {self.window}")
+
+
+@dataclass(frozen=True)
 class VideoConfig(_Checked):
     """Reading a clip, its background and the timing of its exposures."""
 
@@ -274,6 +319,7 @@ class Config:
     crop: CropConfig = field(default_factory=CropConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     video: VideoConfig = field(default_factory=VideoConfig)
+    joint: JointConfig = field(default_factory=JointConfig)
     detect: DetectConfig = field(default_factory=DetectConfig)
     demo: DemoConfig = field(default_factory=DemoConfig)
 
@@ -287,8 +333,8 @@ def _coerce(value: Any, typ: Any, where: str) -> Any:
     if origin is tuple:
         args = typing.get_args(typ)
         if len(args) == 2 and args[1] is Ellipsis:
-            if not isinstance(value, list | tuple) or not value:
-                raise ConfigError(f"{where} must be a non-empty list, got {value!r}")
+            if not isinstance(value, list | tuple):
+                raise ConfigError(f"{where} must be a list, got {value!r}")
             return tuple(_coerce(v, args[0], where) for v in value)
         if not isinstance(value, list | tuple) or len(value) != len(args):
             raise ConfigError(f"{where} must be a list of {len(args)} values, got {value!r}")

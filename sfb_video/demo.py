@@ -14,9 +14,9 @@ from pathlib import Path
 
 from sfb_video.config import Config
 from sfb_video.evaluation.synthetic import FrameScore, score_state
-from sfb_video.results import load_results
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip
 from sfb_video.video import VideoWriter
+from stages.joint import final_results
 
 
 def demo_clip(config: Config) -> SyntheticClip:
@@ -51,8 +51,9 @@ def demo_config(config: Config) -> Config:
 
 
 def score_run(folder: Path, clip: SyntheticClip, config: Config) -> dict[int, FrameScore]:
-    """Score every fitted frame of a run against the clip's truth, in the run's time direction."""
-    return {i: score_state(r.state, clip, i, config, may_flip=False) for i, r in load_results(folder).items()}
+    """Score every fitted frame of a run, as its outputs show it, against the clip's truth, in
+    the run's time direction."""
+    return {i: score_state(r.state, clip, i, config, may_flip=False) for i, r in final_results(folder).items()}
 
 
 def score_table(scores: dict[int, FrameScore]) -> str:

@@ -156,7 +156,7 @@ def _oriented(streak: Streak, motion: Motion, crop: Crop) -> Streak:
 
 
 @contextmanager
-def _deterministic(device: torch.device) -> Iterator[None]:
+def deterministic(device: torch.device) -> Iterator[None]:
     """Serial CPU kernels while fitting, restoring the caller's setting after.
 
     The backward of every gather is index_put_ with accumulation, which torch runs on several
@@ -240,7 +240,7 @@ def fit_frame(
         else:
             motion.start_at_streak(streak_from_mask(crop.object_mask))
         iterations = config.warm_iterations if warm is not None else config.iterations
-        with _deterministic(device):
+        with deterministic(device):
             params, record, rendered, curve = _optimise(
                 crop, shape, motion, iterations, warm is not None, masks, config, render_config, on_step
             )

@@ -2,7 +2,9 @@
 
 One :class:`FrameResult` per frame in which the object was fitted. It is saved as soon as the
 frame is done (:func:`sfb_video.run_folder.frame_path`, written atomically), which is what lets
-an interrupted run resume and ``sfb-video export`` re-render without fitting again.
+an interrupted run resume and ``sfb-video export`` re-render without fitting again. The joint
+fit of a window of a track is saved the same way, as a :class:`SavedWindow`
+(:func:`sfb_video.run_folder.window_path`).
 """
 
 from __future__ import annotations
@@ -20,9 +22,11 @@ from sfb_video.checks import SfbError
 from sfb_video.crop import Box
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
+from sfb_video.joint import JointResult
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
-from sfb_video.run_folder import FRAMES, ensure_folder, frame_path
+from sfb_video.model.trajectory import Trajectory
+from sfb_video.run_folder import FRAMES, WINDOWS, ensure_folder, frame_path, window_path
 
 
 @dataclass(frozen=True)
@@ -129,3 +133,75 @@ def load_results(folder: Path) -> dict[int, FrameResult]:
     """Every frame result saved in a run ``folder``, by frame index."""
     results = (load_result(p) for p in sorted((folder / FRAMES).glob("frame_*.pt")))
     return {r.index: r for r in results}
+
+
+@dataclass(frozen=True)
+class SavedWindow:
+    """The joint fit of one window of a track, as the run folder keeps it.
+
+    Attributes:
+        track: the track's number (:class:`stages.track.FrameStatus`).
+        result: the joint fit; its ``losses`` name the window's frames.
+        before: per frame of the window, the loss terms of its single-frame fit (the seed).
+    """
+
+    track: int
+    result: JointResult
+    before: dict[int, dict[str, float]]
+
+    @property
+    def frames(self) -> list[int]:
+        return sorted(self.result.losses)
+
+
+def save_window(folder: Path, window: SavedWindow) -> None:
+    """Write ``window`` into the run ``folder``, atomically."""
+    r, path = window.result, window.result.trajectory
+    record: dict[str, Any] = {
+        "track": window.track,
+        "before": {int(k): dict(v) for k, v in window.before.items()},
+        "prototype": r.prototype,
+        "vertices": r.vertices.detach().cpu(),
+        "faces": r.topology.faces.cpu(),
+        "uvs": r.topology.uvs.cpu(),
+        "face_uvs": r.topology.face_uvs.cpu(),
+        "texture": r.texture.detach().cpu(),
+        "trajectory": {f.name: getattr(path, f.name) for f in dataclasses.fields(path)},
+        "losses": {int(k): dict(v) for k, v in r.losses.items()},
+        "loss": r.loss,
+        "curve": list(r.curve),
+        "seconds": r.seconds,
+        "bounce": r.bounce,
+        "trials": dict(r.trials),
+    }
+    buffer = io.BytesIO()
+    torch.save(record, buffer)
+    ensure_folder(folder / WINDOWS)
+    atomic_write_bytes(window_path(folder, window.frames[0]), buffer.getvalue())
+
+
+def load_window(path: Path) -> SavedWindow:
+    """Read a window written by :func:`save_window` (tensors on the CPU)."""
+    try:
+        r = torch.load(path, map_location="cpu", weights_only=True)
+        result = JointResult(
+            prototype=r["prototype"],
+            vertices=r["vertices"],
+            topology=MeshTopology.build(r["faces"], r["uvs"], r["face_uvs"]),
+            texture=r["texture"],
+            trajectory=Trajectory(**r["trajectory"]),
+            losses=r["losses"],
+            loss=float(r["loss"]),
+            curve=r["curve"],
+            seconds=float(r["seconds"]),
+            bounce=r["bounce"],
+            trials=r["trials"],
+        )
+        return SavedWindow(int(r["track"]), result, r["before"])
+    except (OSError, RuntimeError, KeyError, TypeError, EOFError) as exc:
+        raise SfbError(f"cannot read the window {path}: {exc}") from None
+
+
+def load_windows(folder: Path) -> list[SavedWindow]:
+    """Every window saved in a run ``folder``, in frame order."""
+    return [load_window(p) for p in sorted((folder / WINDOWS).glob("window_*.pt"))]

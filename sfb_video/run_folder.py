@@ -32,8 +32,9 @@ Files of a ``process`` run (every path of a run is spelled here)::
     config.yaml               the resolved config
     frames/frame_XXXXX.pt     one saved fit per fitted frame (what resume and export read)
     detections.json           every frame's status, written when fitting is done
+    windows/window_XXXXX.pt   one saved joint fit per window of a track (from frame XXXXX)
     tsr.mp4, trajectory.csv, recording.rrd
-    meshes/frame_XXXXX.glb, meshes/best/mesh.obj (+ .mtl, .png)
+    meshes/frame_XXXXX.glb, meshes/track_XX.glb, meshes/best/mesh.obj (+ .mtl, .png)
     novel_views/frame_XXXXX.mp4 (+ .png)
     summary.json              the last output written
 """
@@ -58,6 +59,7 @@ KINDS = ("process", "fit", "eval")
 MARKER = "run.json"
 CONFIG = "config.yaml"
 FRAMES = "frames"
+WINDOWS = "windows"
 DETECTIONS = "detections.json"
 SUMMARY = "summary.json"
 TSR_VIDEO = "tsr.mp4"
@@ -84,9 +86,19 @@ def saved_frames(folder: Path) -> set[int]:
     return {int(p.stem.removeprefix("frame_")) for p in (folder / FRAMES).glob("frame_*.pt")}
 
 
+def window_path(folder: Path, first: int) -> Path:
+    """Where the saved joint fit of the window that starts at frame ``first`` lives."""
+    return folder / WINDOWS / f"window_{first:05d}.pt"
+
+
 def mesh_path(folder: Path, index: int) -> Path:
     """The textured GLB of frame ``index``."""
     return folder / MESHES / f"frame_{index:05d}.glb"
+
+
+def track_mesh_path(folder: Path, track: int) -> Path:
+    """The textured GLB of track ``track`` (its shared mesh, at rest)."""
+    return folder / MESHES / f"track_{track:02d}.glb"
 
 
 def novel_view_path(folder: Path, index: int) -> Path:

@@ -2,7 +2,10 @@
 
 Everything here is rendered from the results saved in the run folder and the clip itself, so
 ``sfb-video export`` can redo it at another TSR factor without fitting again. The clip is
-streamed once and each result loaded only for its frame. Every file is written atomically.
+streamed once and each result loaded only for its frame. Where a joint fit covers a frame
+(:mod:`stages.joint`), the frame's object is the window's (its shared mesh and texture, its
+pose on the window's trajectory), and the trajectory between exposures is exported too. Every
+file is written atomically.
 """
 
 from __future__ import annotations
@@ -27,12 +30,26 @@ from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import matrix_to_axis_angle
 from sfb_video.imageio import as_float
 from sfb_video.model.formation import exposure_times
+from sfb_video.model.scene import ObjectState
+from sfb_video.model.trajectory import Trajectory
 from sfb_video.recording import Recorder
-from sfb_video.results import FrameResult, load_result
-from sfb_video.run_folder import BEST_MESH, MESHES, RECORDING, TSR_VIDEO, ensure_folder, frame_path, mesh_path
+from sfb_video.results import FrameResult, SavedWindow, load_result, load_window
+from sfb_video.run_folder import (
+    BEST_MESH,
+    MESHES,
+    RECORDING,
+    TSR_VIDEO,
+    ensure_folder,
+    frame_path,
+    mesh_path,
+    track_mesh_path,
+    window_path,
+)
 from sfb_video.video import VideoWriter
 from stages.background import FrameWithBackground
 from stages.detect import difference_mask
+from stages.joint import Window, frame_windows, with_joint
+from stages.track import FrameStatus
 
 
 class Pasted(Sequence[torch.Tensor]):
@@ -111,7 +128,8 @@ def render_frame(
 def trajectory_rows(
     result: FrameResult, camera: PinholeCamera, n: int, fps: float, exposure_fraction: float, diameter: float | None
 ) -> Iterator[dict[str, float | int | str]]:
-    """One CSV row per sub-frame of a fitted frame, at the sub-frame's mid-time.
+    """One CSV row per sub-frame of a fitted frame, at the sub-frame's mid-time
+    (``in_exposure`` 1).
 
     Positions are in the camera frame (x right, y down, z forward) in object sizes, and in metres
     when the object's ``diameter`` (metres) is known; the rotation is the object's orientation as
@@ -125,17 +143,50 @@ def trajectory_rows(
     speed = float(motion.dx.norm()) / exposure_s
     spin = math.degrees(float(motion.omega.norm())) / exposure_s
     axis_angles = torch.rad2deg(matrix_to_axis_angle(rotations))
-    for k in range(n):
+    times = (result.index + taus * exposure_fraction) / fps
+    yield from _rows(result.index, 1, times, uv, positions, axis_angles, [speed] * n, spin, diameter)
+
+
+def gap_rows(
+    trajectory: Trajectory, index: int, camera: PinholeCamera, n: int, fps: float, diameter: float | None
+) -> Iterator[dict[str, float | int | str]]:
+    """``n`` CSV rows (``in_exposure`` 0) on a joint trajectory between the end of frame
+    ``index``'s exposure and the start of the next, evenly spaced in time."""
+    e = trajectory.exposure_fraction
+    k = torch.arange(n, dtype=torch.float32)
+    t = trajectory.time(index) + e + (k + 0.5) / n * (1 - e)
+    positions, rotations = trajectory.positions(t), trajectory.rotations(t)
+    uv, _ = camera.project(positions)
+    speed = (trajectory.speed(t) * fps).tolist()
+    spin = math.degrees(float(trajectory.spin.norm())) * fps
+    axis_angles = torch.rad2deg(matrix_to_axis_angle(rotations))
+    times = (t + trajectory.first_frame) / fps
+    yield from _rows(index, 0, times, uv, positions, axis_angles, speed, spin, diameter)
+
+
+def _rows(
+    index: int,
+    in_exposure: int,
+    times: torch.Tensor,
+    uv: torch.Tensor,
+    positions: torch.Tensor,
+    axis_angles: torch.Tensor,
+    speeds: list[float],
+    spin: float,
+    diameter: float | None,
+) -> Iterator[dict[str, float | int | str]]:
+    for k in range(times.shape[0]):
         row: dict[str, float | int | str] = {
-            "frame": result.index,
+            "frame": index,
             "subframe": k,
-            "time_s": (result.index + float(taus[k]) * exposure_fraction) / fps,
+            "in_exposure": in_exposure,
+            "time_s": float(times[k]),
             "u_px": float(uv[k, 0]),
             "v_px": float(uv[k, 1]),
             "x": float(positions[k, 0]),
             "y": float(positions[k, 1]),
             "z": float(positions[k, 2]),
-            "speed_sizes_per_s": speed,
+            "speed_sizes_per_s": speeds[k],
             "rot_x_deg": float(axis_angles[k, 0]),
             "rot_y_deg": float(axis_angles[k, 1]),
             "rot_z_deg": float(axis_angles[k, 2]),
@@ -146,8 +197,8 @@ def trajectory_rows(
                 x_m=row["x"] * diameter,
                 y_m=row["y"] * diameter,
                 z_m=row["z"] * diameter,
-                speed_m_per_s=speed * diameter,
-                speed_km_per_h=speed * diameter * 3.6,
+                speed_m_per_s=speeds[k] * diameter,
+                speed_km_per_h=speeds[k] * diameter * 3.6,
             )
         yield row
 
@@ -208,10 +259,28 @@ def _fit_record(result: FrameResult, speed: float, diameter: float | None) -> di
     return record
 
 
+class _Windows:
+    """The joint fits of a run, loaded one window at a time as the frames stream past."""
+
+    def __init__(self, folder: Path, windows: list[Window]) -> None:
+        self.folder, self.owner = folder, frame_windows(windows)
+        self.loaded: SavedWindow | None = None
+
+    def of(self, index: int) -> SavedWindow | None:
+        """The window whose joint fit stands for frame ``index``, or None."""
+        first = self.owner.get(index)
+        if first is None:
+            return None
+        if self.loaded is None or self.loaded.frames[0] != first:
+            self.loaded = load_window(window_path(self.folder, first))
+        return self.loaded
+
+
 def export_frames(
     folder: Path,
     frames: Iterator[FrameWithBackground],
-    detections: dict[int, tuple[int, int, int, int] | None],
+    statuses: list[FrameStatus],
+    windows: list[Window],
     camera: PinholeCamera,
     fps: float,
     n: int,
@@ -220,11 +289,16 @@ def export_frames(
     diameter: float | None,
 ) -> Exported:
     """Stream the clip once and write ``tsr.mp4`` (N sub-frames per fitted frame, the frame N
-    times otherwise), ``recording.rrd`` and ``meshes/frame_XXXXX.glb``, loading each frame's
-    saved result only while it is needed, so memory does not grow with the clip."""
+    times otherwise), ``recording.rrd``, ``meshes/frame_XXXXX.glb`` and one
+    ``meshes/track_XX.glb`` per track (the lowest-L_I frame's mesh), loading each frame's saved
+    result (and its window's joint fit) only while it is needed, so memory does not grow with
+    the clip."""
     done = Exported()
     trajectory: list[np.ndarray] = []
     best_loss = math.inf
+    tracks: dict[int, tuple[float, ObjectState]] = {}
+    by_index = {s.index: s for s in statuses}
+    joint = _Windows(folder, windows)
     ensure_folder(folder / MESHES)
     with (
         VideoWriter(folder / TSR_VIDEO, fps * n, camera.width, camera.height) as video,
@@ -233,13 +307,16 @@ def export_frames(
         for frame in frames:
             recorder.log_frame(frame.index, frame.pixels, frame.background_pixels)
             mask = difference_mask(frame.pixels, frame.background_pixels, config.detect)
-            recorder.log_detection(frame.index, detections.get(frame.index), mask)
+            status = by_index.get(frame.index)
+            recorder.log_detection(frame.index, None if status is None else status.box, mask)
             path = frame_path(folder, frame.index)
             if not path.is_file():
                 for _ in range(n):
                     video.write(frame.pixels)
                 continue
-            result = load_result(path)
+            single = load_result(path)
+            window = joint.of(frame.index)
+            result = single if window is None else with_joint(single, window)
             rendered = render_frame(frame, result, camera, n, config)
             for sub in rendered.subframes:
                 video.write(sub)
@@ -249,15 +326,28 @@ def export_frames(
             order = _mask_order(result)
             source = result.mask_source if order is None else f"{result.mask_source}, order {order}"
             recorder.log_masks(frame.index, source, result.crop_box, result.masks, n)
-            trajectory.append(result.state.motion.at(exposure_times(n))[1].numpy())
-            recorder.log_trajectory(np.concatenate(trajectory))
             write_glb(result.state, mesh_path(folder, frame.index))
             rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
+            record = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)
+            if window is not None:
+                record.update(window=window.frames[0], losses_before=single.losses, prototype_before=single.prototype)
+                if frame.index + 1 in window.result.losses:
+                    rows += gap_rows(window.result.trajectory, frame.index, camera, n, fps, diameter)
+            trajectory.append(np.array([[r["x"], r["y"], r["z"]] for r in rows], dtype=np.float32))
+            recorder.log_trajectory(np.concatenate(trajectory))
             done.rows += rows
-            done.fits[frame.index] = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)
+            done.fits[frame.index] = record
             if result.losses["image"] < best_loss:
                 best_loss, done.best = result.losses["image"], frame.index
+            track = None if status is None else status.track
+            if track is not None and result.losses["image"] < tracks.get(track, (math.inf,))[0]:
+                tracks[track] = (result.losses["image"], result.state)
         done.video_frames = video.frames_written
+    for track, (_, state) in tracks.items():
+        write_glb(state, track_mesh_path(folder, track))
     if done.best is not None:
-        write_obj(load_result(frame_path(folder, done.best)).state, ensure_folder(folder / BEST_MESH), name="mesh")
+        single = load_result(frame_path(folder, done.best))
+        window = joint.of(done.best)
+        best = single if window is None else with_joint(single, window)
+        write_obj(best.state, ensure_folder(folder / BEST_MESH), name="mesh")
     return done

@@ -1,8 +1,9 @@
-"""The whole pipeline for one clip: read -> background -> track (detect, fit) -> export.
+"""The whole pipeline for one clip: read -> background -> track (detect, fit) -> joint -> export.
 
 The run folder (:mod:`sfb_video.run_folder`) is created, resumed or staged for replacement
-first. Every fitted frame is saved into it as soon as it is done; a run that stops (Ctrl-C, a
-crash, a full disk) resumes from there when started again with the same clip and config. The
+first. Every fitted frame, and every window's joint fit, is saved into it as soon as it is
+done; a run that stops (Ctrl-C, a crash, a full disk) resumes from there when started again
+with the same clip and config. The
 exports are written last, from the saved results, ``summary.json`` after them, and the run is
 marked finished (and a replacement swapped in) only then.
 """
@@ -22,7 +23,7 @@ from sfb_video.atomic import write_json
 from sfb_video.checks import SfbError, printable
 from sfb_video.config import Config, config_to_dict, save_config
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.results import FrameResult
+from sfb_video.results import FrameResult, SavedWindow, load_window
 from sfb_video.run_folder import (
     CONFIG,
     DETECTIONS,
@@ -33,10 +34,12 @@ from sfb_video.run_folder import (
     RunFolder,
     open_run,
     saved_frames,
+    window_path,
 )
 from sfb_video.video import VideoInfo
 from stages.background import with_backgrounds
 from stages.export import Exported, export_frames, write_csv
+from stages.joint import fit_windows, track_windows
 from stages.masks import MaskSource, choose_masks, print_line
 from stages.read import probe
 from stages.track import FrameStatus, track_and_fit
@@ -114,7 +117,8 @@ def read_run(folder: Path) -> tuple[dict, list[FrameStatus]]:
     except (OSError, json.JSONDecodeError) as exc:
         raise SfbError(f"cannot read the run in {folder}: {exc}") from None
     return record, [
-        FrameStatus(r["index"], r["status"], None if r["box"] is None else tuple(r["box"]), r["note"]) for r in rows
+        FrameStatus(r["index"], r["status"], None if r["box"] is None else tuple(r["box"]), r["note"], r.get("track"))
+        for r in rows
     ]
 
 
@@ -129,11 +133,15 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     frames = None if record["frames"] is None else range(*record["frames"])
     background = None if record["background"] is None else Path(record["background"])
     stream = with_backgrounds(video, config.video, info.frame_count, frames, background)
-    boxes = {s.index: s.box for s in statuses}
+    windows = track_windows(statuses, config.joint.window, config.joint.overlap) if config.joint.enabled else []
+    # A window whose joint fit diverged was not saved: its frames keep their single-frame fits.
+    windows = [w for w in windows if window_path(folder, w[1][0]).is_file()]
     diameter = record["object_diameter"]
-    done = export_frames(folder, stream, boxes, camera, info.fps, tsr, config, printable(video.stem), diameter)
+    name = printable(video.stem)
+    done = export_frames(folder, stream, statuses, windows, camera, info.fps, tsr, config, name, diameter)
     write_csv(folder / TRAJECTORY, done.rows)
     summary = _summary(record, info, statuses, done, tsr, device_note)
+    summary["joint"] = _joint_summary(folder, windows)
     write_json(folder / SUMMARY, summary)
     return summary
 
@@ -169,6 +177,35 @@ def _summary(
         "masks": {"source": record.get("masks", "diff"), "reason": record.get("masks_reason", "")},
         "outputs": OUTPUTS,
         "frames": frames,
+    }
+
+
+def _joint_summary(folder: Path, windows: list[tuple[int, list[int]]]) -> dict:
+    """What summary.json says of the joint fits: per window its frames, motion model, exposure
+    fraction, prototype (and the candidates' trial losses), and the mean L_I before and after."""
+    rows = []
+    for track, frames in windows:
+        saved = load_window(window_path(folder, frames[0]))
+        joint = saved.result
+        rows.append(
+            {
+                "track": track,
+                "frames": frames,
+                "model": joint.trajectory.model,
+                "bounce_frame": None if joint.bounce is None else frames[0] + joint.bounce,
+                "exposure_fraction": joint.trajectory.exposure_fraction,
+                "prototype": joint.prototype,
+                "prototype_trials": joint.trials,
+                "image_loss_before": sum(saved.before[i]["image"] for i in frames) / len(frames),
+                "image_loss_after": sum(joint.losses[i]["image"] for i in frames) / len(frames),
+                "seconds": joint.seconds,
+            }
+        )
+    fractions = sorted(r["exposure_fraction"] for r in rows)
+    return {
+        "enabled": bool(windows),
+        "exposure_fraction": fractions[len(fractions) // 2] if fractions else None,
+        "windows": rows,
     }
 
 
@@ -246,5 +283,18 @@ def _process(
         statuses = track_and_fit(frames, run.work, camera, config, device, masks, report)
     if not statuses:
         raise SfbError(f"{printable(str(options.video))}: no frames in the requested range")
+    if config.joint.enabled:
+        windows = track_windows(statuses, config.joint.window, config.joint.overlap)
+        frames = with_backgrounds(options.video, config.video, info.frame_count, options.frames, options.background)
+        with tqdm(total=len(windows), unit="window", desc="joint fit", disable=True if quiet else None) as bar:
+
+            def report_window(window: SavedWindow) -> None:
+                bar.update(1)
+                bar.set_postfix(
+                    frames=f"{window.frames[0]}-{window.frames[-1]}",
+                    e=f"{window.result.trajectory.exposure_fraction:.2f}",
+                )
+
+            fit_windows(frames, run.work, statuses, camera, config, device, report_window)
     write_statuses(run.work, statuses)
     return export_run(run.work, config, config.video.tsr, str(device))

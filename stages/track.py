@@ -12,6 +12,7 @@ make consecutive frames meet end to start, and that order between frames wins ov
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -34,12 +35,14 @@ from stages.masks import MaskSource
 
 @dataclass(frozen=True)
 class FrameStatus:
-    """What happened to one frame: ``fitted``, ``no_object`` or ``failed`` (with the reason)."""
+    """What happened to one frame: ``fitted``, ``no_object`` or ``failed`` (with the reason),
+    and for a fitted frame, the number of its track (0, 1, ... in the order tracks start)."""
 
     index: int
     status: str
     box: tuple[int, int, int, int] | None = None
     note: str = ""
+    track: int | None = None
 
 
 StepReport = Callable[[FrameStatus, FrameResult | None], None]
@@ -51,7 +54,9 @@ def predict(motion: Motion, camera: PinholeCamera) -> Prediction:
     return Prediction((float(uv[0]), float(uv[1])), float(camera.fy / depth))
 
 
-def _gap(previous: FrameResult, current: FrameResult, camera: PinholeCamera, exposure_fraction: float) -> float:
+def join_gap(previous: FrameResult, current: FrameResult, camera: PinholeCamera, exposure_fraction: float) -> float:
+    """Pixels between where ``current``'s exposure starts and where ``previous``'s motion,
+    continued at constant velocity across the gap, puts that start."""
     predicted = continue_motion(previous.state.motion, current.index - previous.index, exposure_fraction)
     uv = camera.project(torch.stack((predicted.x0, current.state.motion.x0)))[0]
     return float((uv[0] - uv[1]).norm())
@@ -76,7 +81,7 @@ def join(
     options = [(p, c) for p in (previous, previous.reversed()) for c in (current, current.reversed())]
     if not may_flip_previous:
         options = options[:2]
-    return min(options, key=lambda pc: _gap(pc[0], pc[1], camera, exposure_fraction))
+    return min(options, key=lambda pc: join_gap(pc[0], pc[1], camera, exposure_fraction))
 
 
 def with_neighbours(
@@ -162,7 +167,7 @@ def track_and_fit(
     saved = saved_frames(folder)
     statuses: list[FrameStatus] = []
     previous: FrameResult | None = None  # the last fitted frame of the current track
-    track_length = 0
+    track_length, tracks = 0, 0
     for frame, mask, neighbours in with_neighbours(frames, config):
         if previous is not None and frame.index - previous.index != 1:
             previous, track_length = None, 0
@@ -185,6 +190,9 @@ def track_and_fit(
             except NoObjectError as exc:
                 status, result = FrameStatus(frame.index, "no_object", detection.box, str(exc)), None
         if result is not None:
+            if previous is None:
+                tracks += 1
+            status = dataclasses.replace(status, track=tracks - 1)
             if previous is not None:
                 before, result = join(previous, result, camera, config.video.exposure_fraction, track_length == 1)
                 if before is not previous:

@@ -1,16 +1,19 @@
-"""Run the method on benchmark sequences, per frame and as a warm-started video, and score it.
+"""Run the method on benchmark sequences, per frame, as a warm-started video and jointly, and
+score it.
 
 Each frame gets what the FMO deblurring benchmark hands a method: the frame, its background,
 the tight box and the number of sub-frames. ``per-frame`` fits every frame from a cold start,
-as the benchmark (and the paper) does; ``video`` fits the sequence in order as the pipeline
-does, each frame warm-started from the previous one. Both are scored with the benchmark's own
-rules (``sfb_video.metrics``), so their numbers compare with the published ones and with each
+as the benchmark (and the paper) does; ``video`` fits the sequence in order, each frame
+warm-started from the previous one; ``joint`` then refits windows of those frames with one
+shape and one trajectory (:mod:`stages.joint`), as the pipeline does by default. All are scored
+with the benchmark's own rules (``sfb_video.metrics``), so their numbers compare with the published ones and with each
 other. A frame the method cannot fit scores 0 on every measure, as in the benchmark, where an
 unscored frame keeps its initial 0.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
@@ -26,15 +29,16 @@ from sfb_video.evaluation.datasets import BenchmarkFrame
 from sfb_video.evaluation.scoring import render_estimate, score_estimate
 from sfb_video.fitter import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.results import FrameResult
+from sfb_video.results import FrameResult, SavedWindow
 from sfb_video.synth import SyntheticClip
 from stages.background import FrameWithBackground
 from stages.detect import Detection
 from stages.fit import fit_detection
+from stages.joint import fit_track_window, frame_windows, track_windows, window_frame, with_joint
 from stages.masks import MaskSource
-from stages.track import join
+from stages.track import FrameStatus, join, join_gap, predict
 
-MODES = ("per-frame", "video")
+MODES = ("per-frame", "video", "joint")
 
 
 class Sequence(Protocol):
@@ -64,6 +68,7 @@ class FrameRow:
     translation_err: float = math.nan
     rotation_err_deg: float = math.nan
     mesh_err: float = math.nan
+    prototype: str = ""
 
 
 def _tensor(image: np.ndarray) -> torch.Tensor:
@@ -116,7 +121,7 @@ def mode_config(config: Config, mode: str) -> Config:
     """Per-frame fits use the fitter's prototypes; a video track's first frame tries the track's."""
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}; choose one of {MODES}")
-    if mode == "video":
+    if mode != "per-frame":
         return config
     return dataclasses.replace(config, video=dataclasses.replace(config.video, track_prototypes=config.fit.prototypes))
 
@@ -139,35 +144,118 @@ def run_sequence(
     """
     config = mode_config(config, mode)
     clip: SyntheticClip | None = getattr(sequence, "clip", None)
-    if clip is not None:
+    if clip is not None and getattr(sequence, "told_exposure", True):
         # The generator's camera and shutter are known: the method is told them, as a user would be.
         video = dataclasses.replace(config.video, exposure_fraction=clip.spec.exposure_fraction)
         config = dataclasses.replace(config, video=video)
     rows: list[FrameRow] = []
+    fitted: dict[int, tuple[BenchmarkFrame, FrameResult, float]] = {}  # joint mode: scored at the end
+    statuses: list[FrameStatus] = []
     previous: FrameResult | None = None
-    track_length = 0
+    track_length, tracks = 0, 0
+    camera: PinholeCamera | None = None
     for frame in sequence.frames():
-        if max_frames is not None and len(rows) >= max_frames:
+        if max_frames is not None and len(statuses) >= max_frames:
             break
         height, width = frame.image.shape[:2]
         camera = clip.camera if clip is not None else PinholeCamera.from_fov(width, height, config.camera.fov_y_deg)
         start = time.perf_counter()
         try:
-            warm = previous if mode == "video" else None
+            warm = previous if mode != "per-frame" else None
             result = fit_benchmark_frame(frame, camera, config, warm, device, masks)
-            estimate = estimate_subframes(result, frame, camera, config)
+            estimate = None if mode == "joint" else estimate_subframes(result, frame, camera, config)
         except NoObjectError:
             row = FrameRow(sequence.dataset, sequence.name, frame.index, mode, "no_object", 0.0, 0.0, 0.0, 0.0)
+            statuses.append(FrameStatus(frame.index, "no_object"))
             previous, track_length = None, 0
         else:
             seconds = time.perf_counter() - start
-            scores = score_frame(frame, result, estimate, camera, clip)
-            row = FrameRow(sequence.dataset, sequence.name, frame.index, mode, result.start, seconds=seconds, **scores)
-            if mode == "video":
+            if mode != "per-frame":
+                joined = False
                 if previous is not None:
-                    _, result = join(previous, result, camera, config.video.exposure_fraction, track_length == 1)
+                    e = config.video.exposure_fraction
+                    before, result = join(previous, result, camera, e, track_length == 1)
+                    if mode == "joint":
+                        fitted[previous.index] = (fitted[previous.index][0], before, fitted[previous.index][2])
+                    # One track for the joint fit only where the fits meet (within two diameters).
+                    joined = join_gap(before, result, camera, e) < 2 * predict(before.state.motion, camera).diameter
+                tracks += not joined
                 previous, track_length = result, track_length + 1
+            statuses.append(
+                FrameStatus(frame.index, "fitted", frame.box, track=None if mode == "per-frame" else tracks - 1)
+            )
+            if mode == "joint":
+                fitted[frame.index] = (frame, result, seconds)
+                continue
+            assert estimate is not None
+            scores = score_frame(frame, result, estimate, camera, clip)
+            row = FrameRow(
+                sequence.dataset,
+                sequence.name,
+                frame.index,
+                mode,
+                result.start,
+                seconds=seconds,
+                prototype=result.prototype,
+                **scores,
+            )
         rows.append(row)
         if on_frame is not None:
             on_frame(row)
-    return rows
+    if mode != "joint" or camera is None:
+        return rows
+    return _joint_rows(sequence, statuses, fitted, rows, camera, config, device, clip, on_frame)
+
+
+def _joint_rows(
+    sequence: Sequence,
+    statuses: list[FrameStatus],
+    fitted: dict[int, tuple[BenchmarkFrame, FrameResult, float]],
+    unfitted: list[FrameRow],
+    camera: PinholeCamera,
+    config: Config,
+    device: torch.device,
+    clip: SyntheticClip | None,
+    on_frame: Callable[[FrameRow], None] | None,
+) -> list[FrameRow]:
+    """Fit the windows of the warm-started fits jointly and score every frame as the joint fit
+    shows it; a frame's time is its single-frame fit's plus its share of each window's."""
+    windows = track_windows(statuses, config.joint.window, config.joint.overlap)
+    done: dict[int, SavedWindow] = {}
+    seconds = {i: s for i, (_, _, s) in fitted.items()}
+    for track, members in windows:
+        crops = {}
+        for i in members:
+            frame, result, _ = fitted[i]
+            inputs = FrameWithBackground(i, _tensor(frame.image), _tensor(frame.background))
+            crops[i] = window_frame(inputs, frame.box, result, camera, config, device)
+        earlier = [w for t, w in windows if t == track and w[0] < members[0]]
+        previous = next((done[w[0]] for w in reversed(earlier) if w[0] in done), None)
+        started = time.perf_counter()
+        # A window that diverges is left out: its frames keep their single-frame fits.
+        with contextlib.suppress(RuntimeError):
+            done[members[0]] = fit_track_window(track, members, crops, lambda i: fitted[i][1], previous, camera, config)
+        for i in members:
+            seconds[i] += (time.perf_counter() - started) / len(members)
+    owner = frame_windows([w for w in windows if w[1][0] in done])
+    rows = list(unfitted)
+    for index, (frame, result, _) in sorted(fitted.items()):
+        if index in owner:
+            result = with_joint(result, done[owner[index]])
+        estimate = estimate_subframes(result, frame, camera, config)
+        scores = score_frame(frame, result, estimate, camera, clip)
+        start = "joint" if index in owner else result.start
+        row = FrameRow(
+            sequence.dataset,
+            sequence.name,
+            index,
+            "joint",
+            start,
+            seconds=seconds[index],
+            prototype=result.prototype,
+            **scores,
+        )
+        rows.append(row)
+        if on_frame is not None:
+            on_frame(row)
+    return sorted(rows, key=lambda r: r.frame)

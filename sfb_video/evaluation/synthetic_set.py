@@ -1,7 +1,10 @@
-"""Our synthetic benchmark set: fixed multi-frame clips with full 3D ground truth.
+"""Our synthetic benchmark sets: fixed multi-frame clips with full 3D ground truth.
 
-Five clips, one per shape the generator draws (ball, box, pen, ring, key), with different
-speeds and spins, each fixed by its seed so the set and its scores can be reproduced. The set
+``synthetic``: five clips, one per shape the generator draws (ball, box, pen, ring, key), with
+different speeds and spins. ``synthetic-hard``: longer clips closer to real footage: exposure
+fractions from 0.3 to 1.0, 8-12 frames, gravity arcs, a bounce, a faint low-contrast object,
+one behind a mesh fence and one crossing from a dark to a bright background. Each clip is fixed
+by its seed so the sets and their scores can be reproduced. The set
 is written once into a folder (one sub-folder per clip, in ``sfb_video.synth.io``'s layout) and
 read back as sequences that the evaluation runs like the benchmark's own.
 
@@ -40,6 +43,86 @@ def benchmark_specs() -> dict[str, ClipSpec]:
     }
 
 
+def hard_specs() -> dict[str, ClipSpec]:
+    """The harder set, by sequence name: 8-10 frames of 640x480, 8 sub-frames each."""
+    frame = {"width": 640, "height": 480, "rotation_deg_range": (20.0, 40.0)}
+    return {
+        "ball_arc": ClipSpec(
+            shape="ball",
+            num_frames=10,
+            exposure_fraction=0.5,
+            speed_range=(1.0, 1.1),
+            gravity=0.06,
+            size_px_range=(20.0, 26.0),
+            seed=201,
+            **frame,
+        ),
+        "ball_bounce": ClipSpec(
+            shape="ball",
+            num_frames=10,
+            exposure_fraction=0.7,
+            speed_range=(1.0, 1.2),
+            bounce_time=4.85,
+            size_px_range=(22.0, 28.0),
+            seed=202,
+            **frame,
+        ),
+        "box_short_shutter": ClipSpec(
+            shape="box",
+            num_frames=8,
+            exposure_fraction=0.3,
+            speed_range=(1.0, 1.1),
+            size_px_range=(18.0, 22.0),
+            seed=203,
+            **frame,
+        ),
+        "pen_open_shutter": ClipSpec(
+            shape="pen",
+            num_frames=8,
+            exposure_fraction=1.0,
+            speed_range=(1.2, 1.5),
+            gravity=0.04,
+            size_px_range=(26.0, 32.0),
+            seed=204,
+            **frame,
+        ),
+        "ball_faint": ClipSpec(
+            shape="ball",
+            num_frames=8,
+            exposure_fraction=0.8,
+            speed_range=(1.2, 1.5),
+            contrast=0.3,
+            size_px_range=(24.0, 30.0),
+            seed=205,
+            **frame,
+        ),
+        "ring_fence": ClipSpec(
+            shape="ring",
+            num_frames=8,
+            exposure_fraction=0.6,
+            speed_range=(1.0, 1.2),
+            fence_period_px=16,
+            size_px_range=(24.0, 30.0),
+            seed=206,
+            **frame,
+        ),
+        "box_dark_to_bright": ClipSpec(
+            shape="box",
+            num_frames=10,
+            exposure_fraction=0.8,
+            speed_range=(1.0, 1.3),
+            split_background=True,
+            size_px_range=(24.0, 30.0),
+            seed=207,
+            **frame,
+        ),
+    }
+
+
+SETS = {"synthetic": benchmark_specs, "synthetic-hard": hard_specs}
+"""Dataset name -> its specs."""
+
+
 def _specs_record(specs: dict[str, ClipSpec]) -> dict:
     return {name: spec.to_dict() for name, spec in specs.items()}
 
@@ -53,7 +136,9 @@ def ensure_set(root: Path, specs: dict[str, ClipSpec] | None = None, quiet: bool
     specs = benchmark_specs() if specs is None else specs
     marker = root / SET_FILE
     if marker.is_file():
-        if json.loads(marker.read_text()) != _specs_record(specs):
+        # Compared as specs: a field added to ClipSpec since (at its default) changes nothing.
+        saved = {name: ClipSpec.from_dict(d) for name, d in json.loads(marker.read_text()).items()}
+        if saved != specs:
             raise SfbError(f"{root} holds a different synthetic set; give another --root or delete it")
         return
     # Clip folders alone are an earlier generation cut short: generation starts over on them.
@@ -73,6 +158,8 @@ class SyntheticSequence:
 
     Attributes:
         clip: the whole clip with its 3D truth (small: a few frames).
+        told_exposure: whether the method is told the clip's exposure fraction (the first set);
+            else it starts from the config's and must find it (the harder set).
     """
 
     dataset: str
@@ -81,6 +168,7 @@ class SyntheticSequence:
     num_subframes: int
     num_frames: int
     clip: SyntheticClip
+    told_exposure: bool = True
 
     def frames(self) -> Iterator[BenchmarkFrame]:
         """The frames in which the object is seen, with the truth the benchmark would hand over."""
@@ -100,8 +188,8 @@ class SyntheticSequence:
             )
 
 
-def list_synthetic(root: Path | str) -> list[SyntheticSequence]:
-    """The clips of a set folder, in name order."""
+def list_synthetic(root: Path | str, dataset: str = "synthetic") -> list[SyntheticSequence]:
+    """The clips of a set folder, in name order, named as sequences of ``dataset``."""
     root = Path(root)
     if not (root / SET_FILE).is_file():
         raise SfbError(f"{root} holds no synthetic set ({SET_FILE} is missing)")
@@ -110,6 +198,8 @@ def list_synthetic(root: Path | str) -> list[SyntheticSequence]:
     for name in names:
         clip = load_clip(root / name)
         sequences.append(
-            SyntheticSequence("synthetic", name, root / name, clip.spec.num_subframes, clip.spec.num_frames, clip)
+            SyntheticSequence(
+                dataset, name, root / name, clip.spec.num_subframes, clip.spec.num_frames, clip, dataset == "synthetic"
+            )
         )
     return sequences

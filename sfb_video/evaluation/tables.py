@@ -45,11 +45,13 @@ def summarise(rows: list[FrameRow]) -> list[dict]:
         for name in sequences:
             frames = [r for r in rows if r.mode == mode and r.sequence == name]
             record = {"dataset": frames[0].dataset, "sequence": name, "mode": mode, "frames": len(frames)}
+            # The shape the sequence ended with (its last fitted frame's), so the choice shows.
+            record["prototype"] = next((r.prototype for r in reversed(frames) if r.prototype), "-")
             record |= {key: _mean([getattr(r, key) for r in frames]) for key in MEASURES}
             per_sequence.append(record)
         if not per_sequence:
             continue
-        total = {"dataset": per_sequence[0]["dataset"], "sequence": "total", "mode": mode}
+        total = {"dataset": per_sequence[0]["dataset"], "sequence": "total", "mode": mode, "prototype": ""}
         total["frames"] = sum(r["frames"] for r in per_sequence)
         total |= {key: _mean([r[key] for r in per_sequence]) for key in MEASURES}
         total["seconds"] = _mean([r.seconds for r in rows if r.mode == mode])
@@ -61,13 +63,13 @@ def markdown(records: list[dict]) -> str:
     """A Markdown table of :func:`summarise`'s records, one row each."""
     keys = [k for k in MEASURES if any(not math.isnan(r[k]) for r in records)]
     lines = [
-        "| sequence | mode | frames | " + " | ".join(MEASURES[k][0] for k in keys) + " |",
-        "|---|---|---:|" + "---:|" * len(keys),
+        "| sequence | mode | prototype | frames | " + " | ".join(MEASURES[k][0] for k in keys) + " |",
+        "|---|---|---|---:|" + "---:|" * len(keys),
     ]
     for r in records:
         name = f"**{r['sequence']}**" if r["sequence"] == "total" else r["sequence"]
         cells = ["-" if math.isnan(r[k]) else MEASURES[k][1].format(r[k]) for k in keys]
-        lines.append(f"| {name} | {r['mode']} | {r['frames']} | " + " | ".join(cells) + " |")
+        lines.append(f"| {name} | {r['mode']} | {r['prototype']} | {r['frames']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -3,7 +3,9 @@
 Each prototype is a closed mesh at unit scale with outward faces and a seam-correct texture
 mapping: vertices on a seam get one UV per side, so no face's UVs wrap across the texture.
 The counts follow the paper: a sphere of 1212 vertices / 2420 faces, a larger sphere of
-1538 / 3072 and a torus of 1536 / 3072.
+1538 / 3072 and a torus of 1536 / 3072. The capsule (the sphere's mesh with its hemispheres
+pulled apart along y) is ours: a start for pens and keys, whose streaks a sphere explains with
+an object stretched along them.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import torch
 
 from sfb_video.geometry.mesh import MeshTopology, normalize_vertices, signed_volume
 
-PROTOTYPE_NAMES = ("sphere", "sphere_large", "torus")
+PROTOTYPE_NAMES = ("sphere", "sphere_large", "torus", "capsule")
 
 
 def _grid_faces(rows: int, cols: int, wrap_cols: bool, wrap_rows: bool) -> torch.Tensor:
@@ -103,6 +105,21 @@ def torus(major: int = 48, minor: int = 32, ratio: float = 0.4) -> tuple[torch.T
     return normalize_vertices(vertices), MeshTopology.build(faces, uvs, face_uvs)
 
 
+def capsule(rings: int = 22, segments: int = 55, half_length: float = 1.5) -> tuple[torch.Tensor, MeshTopology]:
+    """A capsule along y: a unit sphere's hemispheres moved ``half_length`` radii apart.
+
+    The cylinder between them is the sphere's equatorial band of faces (``rings`` even), so the
+    vertex count, faces and texture map are the sphere's: 1212 / 2420 by default.
+
+    Returns:
+        vertices (V, 3) at unit scale and the topology.
+    """
+    vertices, topology = uv_sphere(rings, segments)
+    vertices = vertices.clone()
+    vertices[:, 1] += torch.sign(vertices[:, 1]) * half_length * vertices[:, [0, 2]].norm(dim=-1).max()
+    return normalize_vertices(vertices), topology
+
+
 def load_prototype(name: str) -> tuple[torch.Tensor, MeshTopology]:
     """Vertices (V, 3) at unit scale and topology of the prototype ``name``."""
     if name == "sphere":
@@ -111,4 +128,6 @@ def load_prototype(name: str) -> tuple[torch.Tensor, MeshTopology]:
         return uv_sphere(24, 64)
     if name == "torus":
         return torus(48, 32)
+    if name == "capsule":
+        return capsule()
     raise ValueError(f"unknown prototype {name!r}; choose one of {', '.join(PROTOTYPE_NAMES)}")

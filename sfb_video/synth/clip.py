@@ -18,6 +18,7 @@ frame's noise does not depend on which other frames are rendered.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -128,6 +129,48 @@ class SyntheticClip:
         return self.scene.camera
 
 
+def fence_cover(spec: ClipSpec) -> np.ndarray | None:
+    """(H, W) float64 coverage of the spec's fence (wires 2 px wide every ``fence_period_px``
+    pixels, both ways), or None without a fence."""
+    if spec.fence_period_px == 0:
+        return None
+    rows = (np.arange(spec.height) % spec.fence_period_px) < 2
+    cols = (np.arange(spec.width) % spec.fence_period_px) < 2
+    return (rows[:, None] | cols[None, :]).astype(np.float64)
+
+
+FENCE_COLOUR = np.array([70.0, 70.0, 75.0]) / 255
+"""The fence's wire colour, a dark grey."""
+
+
+def _behind_fence(images: np.ndarray, spec: ClipSpec) -> np.ndarray:
+    """(..., H, W, 3) images in [0, 1] seen through the spec's fence."""
+    cover = fence_cover(spec)
+    if cover is None:
+        return images
+    return images * (1 - cover[..., None]) + FENCE_COLOUR * cover[..., None]
+
+
+def _stage_background(background: np.ndarray, spec: ClipSpec) -> np.ndarray:
+    """The (H, W, 3) uint8 background darkened on the left and brightened on the right half
+    (``split_background``), then seen through the fence."""
+    image = background.astype(np.float64) / 255
+    if spec.split_background:
+        half = spec.width // 2
+        image[:, :half] *= 0.3
+        image[:, half:] = 1 - 0.3 * (1 - image[:, half:])
+    return to_uint8(_behind_fence(image, spec))
+
+
+def _faint(mesh: TexturedMesh, background: np.ndarray, contrast: float) -> TexturedMesh:
+    """The mesh with its texture pulled towards the background's mean colour."""
+    if contrast == 1:
+        return mesh
+    mean = background.reshape(-1, 3).mean(0)
+    texture = mean + contrast * (mesh.texture.astype(np.float64) - mean)
+    return dataclasses.replace(mesh, texture=np.clip(texture.round(), 0, 255).astype(np.uint8))
+
+
 def make_scene(spec: ClipSpec) -> SyntheticScene:
     """Draw the shape, texture, background and trajectory of ``spec``."""
     camera = PinholeCamera.from_fov(spec.width, spec.height, spec.fov_y_deg)
@@ -135,6 +178,8 @@ def make_scene(spec: ClipSpec) -> SyntheticScene:
     background, name = make_background(
         stream_rng(spec.seed, _BACKGROUND_STREAM), spec.width, spec.height, spec.background, spec.background_crop_range
     )
+    background = _stage_background(background, spec)
+    mesh = _faint(mesh, background, spec.contrast)
     trajectory = sample_trajectory(
         stream_rng(spec.seed, _TRAJECTORY_STREAM), spec, mesh.vertices.double().numpy(), camera
     )
@@ -186,7 +231,9 @@ def render_exposure(scene: SyntheticScene, index: int) -> tuple[np.ndarray, np.n
         spec.supersample,
         groups=np.arange(k) // (k // n),
     )
-    return raster.composite(scene.background / 255.0), raster.coverage
+    cover = fence_cover(spec)
+    coverage = raster.coverage if cover is None else raster.coverage * (1 - cover)
+    return _behind_fence(raster.composite(scene.background / 255.0), spec), coverage
 
 
 def render_frame(scene: SyntheticScene, index: int) -> tuple[np.ndarray, FrameTruth]:

@@ -169,6 +169,7 @@ def write_scene_json(root: Path | str, scene: SyntheticScene, records: list[dict
             "quaternion0_wxyz": _array(traj.quaternion0),
             "angular_velocity": _array(traj.angular_velocity),
             "exposure_fraction": traj.exposure_fraction,
+            "bounce_time": traj.bounce_time,
         },
         "frames": records,
     }
@@ -230,6 +231,7 @@ def load_clip(root: Path | str) -> SyntheticClip:
         _vec(tr["quaternion0_wxyz"]),
         _vec(tr["angular_velocity"]),
         float(tr["exposure_fraction"]),
+        tr.get("bounce_time"),
     )
     mesh = read_obj(root / "gt", data["shape"])
     scene = SyntheticScene(spec, camera, mesh, read_png(root / "background.png"), data["background_name"], trajectory)

@@ -62,6 +62,15 @@ class ClipSpec:
             visible.
         absent_frames: frames in which the object is not drawn (the frame is background plus
             noise); the trajectory still runs through them.
+        bounce_time: clip time at which the object bounces off a floor (its velocity along
+            image y reverses, keeping ``BOUNCE_RESTITUTION`` of it); None: no bounce. The object
+            then moves down the image before it and up after.
+        contrast: the object's texture is pulled towards the background's mean colour by this
+            factor (1: as drawn; 0.2: a faint, low-contrast object).
+        split_background: darken the left half of the background and brighten the right half,
+            so that an object crossing the middle passes from dark to bright.
+        fence_period_px: draw a static mesh fence in front of everything, wires 2 px wide every
+            this many pixels in both directions (0: none); the background includes it.
         max_tries: trajectory draws before the spec is declared infeasible.
         seed: the seed of every random choice.
     """
@@ -91,6 +100,10 @@ class ClipSpec:
     min_depth: float = 0.5
     margin_px: float = 2.0
     absent_frames: tuple[int, ...] = ()
+    bounce_time: float | None = None
+    contrast: float = 1.0
+    split_background: bool = False
+    fence_period_px: int = 0
     max_tries: int = 2000
     seed: int = 0
 
@@ -164,6 +177,12 @@ def _validate(spec: ClipSpec) -> None:
         raise ConfigError(f"max_depth_change must be in [0, 1), got {spec.max_depth_change}")
     if spec.min_streak < 0 or spec.min_depth <= 0 or spec.margin_px < 0:
         raise ConfigError("min_streak and margin_px must be >= 0 and min_depth > 0")
+    if spec.bounce_time is not None and not 0 < spec.bounce_time < spec.num_frames:
+        raise ConfigError(f"bounce_time must lie in (0, {spec.num_frames}), got {spec.bounce_time}")
+    if not 0 <= spec.contrast <= 1:
+        raise ConfigError(f"contrast must be in [0, 1], got {spec.contrast}")
+    if spec.fence_period_px < 0 or 0 < spec.fence_period_px < 4:
+        raise ConfigError(f"fence_period_px must be 0 (no fence) or at least 4, got {spec.fence_period_px}")
     if any(not 0 <= k < spec.num_frames for k in spec.absent_frames):
         raise ConfigError(f"absent_frames must lie in [0, {spec.num_frames}), got {spec.absent_frames}")
     if not spec.present_frames:

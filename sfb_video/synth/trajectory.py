@@ -3,7 +3,9 @@
 Convention:
     Clip time t is in frame intervals: frame k's exposure covers t in [k, k + e], e the
     exposure fraction, and exposure time tau in [0, 1] maps to t = k + tau * e.
-    Position x(t) = p0 + v t + a t^2 / 2 (camera space, object sizes); rotation
+    Position x(t) = p0 + v t + a t^2 / 2 (camera space, object sizes), and after a bounce at
+    t_b the same from x(t_b) with the velocity's y reversed and scaled by
+    ``BOUNCE_RESTITUTION``; rotation
     R(t) = exp(t w) @ R_init with w an axis-angle per frame interval. Frame k's ground truth is
     then x0 = x(k), dx = x(k + e) - x(k), R0 = R(k), omega = e * w, which matches
     ``geometry.rotation.exposure_rotations``: R(k + tau e) = exp(tau omega) @ R0.
@@ -20,6 +22,9 @@ import numpy as np
 from sfb_video.checks import SfbError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.synth.spec import ClipSpec
+
+BOUNCE_RESTITUTION = 0.8
+"""The share of its vertical speed a bouncing object keeps."""
 
 
 def axis_angle_to_quaternion(omega: np.ndarray) -> np.ndarray:
@@ -93,6 +98,7 @@ class Trajectory:
             frame interval squared.
         quaternion0: (4,) WXYZ R_init = R(0); angular_velocity: (3,) w, axis-angle per frame.
         exposure_fraction: e, the open-shutter fraction of each frame interval.
+        bounce_time: t_b of a bounce (see the module docstring), or None.
     """
 
     position0: np.ndarray
@@ -101,11 +107,20 @@ class Trajectory:
     quaternion0: np.ndarray
     angular_velocity: np.ndarray
     exposure_fraction: float
+    bounce_time: float | None = None
 
     def positions(self, t: np.ndarray) -> np.ndarray:
         """(T,) clip times -> (T, 3) centres."""
         t = np.asarray(t, dtype=np.float64)[:, None]
-        return self.position0 + self.velocity * t + 0.5 * self.acceleration * t**2
+        free = self.position0 + self.velocity * t + 0.5 * self.acceleration * t**2
+        if self.bounce_time is None:
+            return free
+        tb = self.bounce_time
+        at = self.position0 + self.velocity * tb + 0.5 * self.acceleration * tb**2
+        v = self.velocity + self.acceleration * tb
+        v = v * np.array([1.0, -BOUNCE_RESTITUTION, 1.0])
+        s = t - tb
+        return np.where(t > tb, at + v * s + 0.5 * self.acceleration * s**2, free)
 
     def quaternions(self, t: np.ndarray) -> np.ndarray:
         """(T,) clip times -> (T, 4) WXYZ rotations R(t), w >= 0."""
@@ -168,6 +183,10 @@ def sample_trajectory(
         z_mid = f * diameter / size_px
         speed = rng.uniform(*spec.speed_range) * diameter / e
         heading = rng.uniform(0, 2 * math.pi)
+        if spec.bounce_time is not None:
+            # Down the image towards the floor, steeply enough for the bounce to show.
+            side = rng.choice([-1.0, 1.0])
+            heading = math.pi / 2 + side * rng.uniform(math.radians(30), math.radians(55))
         vz = rng.uniform(-1, 1) * spec.max_depth_change * z_mid / span
         velocity = np.array([speed * math.cos(heading), speed * math.sin(heading), vz])
         acceleration = np.array([0.0, spec.gravity, 0.0])
@@ -190,7 +209,7 @@ def sample_trajectory(
         uv = np.array([half_u + u_mid * room_u, half_v + v_mid * room_v])
         mid = np.array([(uv[0] - camera.cx) / camera.fx * z_mid, (uv[1] - camera.cy) / camera.fy * z_mid, z_mid])
         position0 = mid - velocity * t_mid - 0.5 * acceleration * t_mid**2
-        traj = Trajectory(position0, velocity, acceleration, quat0, spin, e)
+        traj = Trajectory(position0, velocity, acceleration, quat0, spin, e, spec.bounce_time)
         if _fits(traj, spec, vertices, camera, times, diameter):
             return traj
     raise SfbError(

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from sfb_video.checks import SfbError
-from sfb_video.evaluation.synthetic_set import SET_FILE, benchmark_specs, ensure_set, list_synthetic
-from sfb_video.synth import ClipSpec
+from sfb_video.evaluation.synthetic_set import SET_FILE, benchmark_specs, ensure_set, hard_specs, list_synthetic
+from sfb_video.synth import ClipSpec, make_scene
 
 
 def _small_set(seed: int = 1) -> dict[str, ClipSpec]:
@@ -56,3 +56,15 @@ def test_a_folder_of_other_things_is_not_written_into(tmp_path: Path) -> None:
         ensure_set(tmp_path, _small_set(), quiet=True)
     with pytest.raises(SfbError, match=SET_FILE):
         list_synthetic(tmp_path)
+
+
+def test_the_hard_set_covers_shutters_lengths_arcs_a_bounce_faint_fence_and_contrast() -> None:
+    specs = hard_specs()
+    assert {round(s.exposure_fraction, 1) for s in specs.values()} >= {0.3, 1.0}
+    assert all(8 <= s.num_frames <= 12 for s in specs.values())
+    assert any(s.gravity > 0 for s in specs.values()) and any(s.bounce_time for s in specs.values())
+    assert any(s.contrast < 0.5 for s in specs.values()) and any(s.fence_period_px for s in specs.values())
+    assert any(s.split_background for s in specs.values())
+    for name, spec in specs.items():
+        # Every clip can be drawn: its object stays in view for all its frames.
+        assert make_scene(spec).trajectory is not None, name

@@ -21,6 +21,8 @@ from sfb_video.synth import (
     render_exposure,
     render_frame,
 )
+from sfb_video.synth.clip import FENCE_COLOUR
+from sfb_video.synth.trajectory import BOUNCE_RESTITUTION
 
 SMALL = ClipSpec(
     width=160,
@@ -193,6 +195,46 @@ def test_gravity_bends_the_path_and_dx_is_the_chord() -> None:
     # Downward (+y) acceleration: the start of frame 1 lies below the straight continuation.
     straight = a.x0 + a.dx / e
     assert b.x0[1] - straight[1] == pytest.approx(0.5 * 0.4 * (1 - e), rel=1e-9)
+
+
+def test_a_bounce_reverses_the_vertical_velocity_and_keeps_the_path_whole() -> None:
+    spec = dataclasses.replace(SMALL, num_frames=3, bounce_time=1.4, speed_range=(1.0, 1.2))
+    traj = make_scene(spec).trajectory
+    eps = 1e-6
+    before, at, after = traj.positions(np.array([1.4 - eps, 1.4, 1.4 + eps]))
+    v_before, v_after = (at - before) / eps, (after - at) / eps
+    assert np.allclose(before, after, atol=1e-4)
+    assert v_before[1] > 0 and v_after[1] == pytest.approx(-BOUNCE_RESTITUTION * v_before[1], rel=1e-4)
+    assert v_after[0] == pytest.approx(v_before[0], rel=1e-4)
+
+
+def test_a_fence_stands_in_front_of_the_background_and_the_object() -> None:
+    spec = dataclasses.replace(SMALL, num_frames=1, fence_period_px=8)
+    clip = generate_clip(spec)
+    wire = FENCE_COLOUR * 255
+    np.testing.assert_allclose(clip.scene.background[0:2, :], np.broadcast_to(wire, (2, spec.width, 3)), atol=1)
+    truth = clip.truth[0]
+    np.testing.assert_allclose(
+        truth.subframes[:, :, 0:2], np.broadcast_to(wire, truth.subframes[:, :, 0:2].shape), atol=1
+    )
+    assert not truth.masks[:, :, 0:2].any() and truth.masks.any()
+
+
+def test_a_faint_object_is_pulled_towards_the_background_s_colour() -> None:
+    spec = dataclasses.replace(SMALL, num_frames=1)
+    strong, faint = make_scene(spec), make_scene(dataclasses.replace(spec, contrast=0.25))
+    mean = strong.background.reshape(-1, 3).mean(0)
+    textures = [s.mesh.texture.reshape(-1, 3).astype(float) for s in (strong, faint)]
+    assert textures[1].std(0) == pytest.approx(0.25 * textures[0].std(0), rel=0.05)
+    assert np.abs(textures[1].mean(0) - mean).max() <= 0.25 * np.abs(textures[0].mean(0) - mean).max() + 1
+
+
+def test_a_split_background_is_dark_on_the_left_and_bright_on_the_right() -> None:
+    plain = make_scene(dataclasses.replace(SMALL, num_frames=1)).background.astype(float)
+    split = make_scene(dataclasses.replace(SMALL, num_frames=1, split_background=True)).background.astype(float)
+    half = SMALL.width // 2
+    assert split[:, :half].mean() < 0.4 * plain[:, :half].mean()
+    assert 255 - split[:, half:].mean() < 0.4 * (255 - plain[:, half:].mean())
 
 
 @pytest.mark.parametrize("shape", SHAPE_NAMES)

@@ -1,0 +1,226 @@
+"""Stage 4b, joint: the single-frame fits of each track -> one mesh, texture and trajectory per
+window of the track (:mod:`sfb_video.joint`).
+
+A track's fitted frames are cut into windows of ``joint.window`` frames that slide by
+``window - overlap`` (a short track is one window; the last window ends at the track's end). The
+clip is streamed once more and each window is fitted as soon as its last frame has been read,
+from crops rebuilt exactly as the single-frame fits made them, so memory holds one window's
+crops whatever the clip's length. A window's fit is saved into the run folder when done: the
+unit a resumed run reuses. The first window of a track tries the fresh prototypes of
+``joint.prototypes`` against the single-frame fits' mesh; each later window starts from its
+predecessor's mesh, texture and poses on the frames they share, so a track keeps one shape.
+
+Every export then reads a frame's state from the window that covers it best (the one whose
+middle is nearest, :func:`frame_windows`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import torch
+
+from sfb_video.config import Config
+from sfb_video.crop import make_crop
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.joint import Seed, WindowFrame, fit_window
+from sfb_video.results import (
+    FrameResult,
+    SavedWindow,
+    load_result,
+    load_results,
+    load_window,
+    load_windows,
+    save_window,
+)
+from sfb_video.run_folder import frame_path, window_path
+from stages.background import FrameWithBackground
+from stages.track import FrameStatus
+
+Window = tuple[int, list[int]]
+"""A window: its track's number and its frame indices, consecutive."""
+
+
+def track_windows(statuses: list[FrameStatus], size: int, overlap: int) -> list[Window]:
+    """The windows of every track of two fitted frames or more, in frame order.
+
+    Args:
+        statuses: every frame's status, in frame order.
+        size: frames per window; overlap: frames a window shares with the previous one.
+    """
+    runs: list[Window] = []
+    for s in statuses:
+        if s.status != "fitted" or s.track is None:
+            continue
+        if runs and runs[-1][0] == s.track and runs[-1][1][-1] == s.index - 1:
+            runs[-1][1].append(s.index)
+        else:
+            runs.append((s.track, [s.index]))
+    windows: list[Window] = []
+    for track, frames in runs:
+        if len(frames) < 2:
+            continue
+        starts = list(range(0, max(1, len(frames) - overlap), size - overlap))
+        starts = sorted({min(s, max(0, len(frames) - size)) for s in starts})
+        windows += [(track, frames[s : s + size]) for s in starts]
+    return windows
+
+
+def frame_windows(windows: list[Window]) -> dict[int, int]:
+    """Frame index -> the first frame of the window that covers it with the most frames on
+    both sides (its middle nearest; the later window on a tie)."""
+    owner: dict[int, tuple[float, int]] = {}
+    for _, frames in windows:
+        middle = (frames[0] + frames[-1]) / 2
+        for index in frames:
+            distance = abs(index - middle)
+            if index not in owner or distance <= owner[index][0]:
+                owner[index] = (distance, frames[0])
+    return {index: first for index, (_, first) in owner.items()}
+
+
+def with_joint(result: FrameResult, window: SavedWindow) -> FrameResult:
+    """Frame ``result`` with the window's object and pose in place of its single-frame fit."""
+    joint = window.result
+    return dataclasses.replace(
+        result,
+        state=joint.state(result.index),
+        prototype=joint.prototype,
+        losses=joint.losses[result.index],
+        curve=joint.curve,
+    )
+
+
+def final_results(folder: Path) -> dict[int, FrameResult]:
+    """Every fitted frame of a run, by index, as its outputs show it: from the window that
+    stands for it where a joint fit was saved, else its single-frame fit."""
+    windows = {w.frames[0]: w for w in load_windows(folder)}
+    owner = frame_windows([(w.track, w.frames) for w in windows.values()])
+    results = load_results(folder)
+    return {i: with_joint(r, windows[owner[i]]) if i in owner else r for i, r in results.items()}
+
+
+def window_frame(
+    frame: FrameWithBackground,
+    box: tuple[int, int, int, int],
+    result: FrameResult,
+    camera: PinholeCamera,
+    config: Config,
+    device: torch.device,
+) -> WindowFrame:
+    """The frame's crop around its detection ``box`` as its single-frame fit made it (the box's
+    pixels stand for the detected blob), with the fit's sub-frame masks."""
+    x, y, w, h = box
+    blob = torch.zeros(frame.pixels.shape[1:], dtype=torch.bool)
+    blob[y : y + h, x : x + w] = True
+    pixels, background = frame.pixels.to(device), frame.background_pixels.to(device)
+    crop = make_crop(pixels, background, box, camera, config.crop, blob.to(device))
+    masks = None if result.masks is None else result.masks.to(device)
+    return WindowFrame(frame.index, crop, masks)
+
+
+def fit_track_window(
+    track: int,
+    members: list[int],
+    crops: dict[int, WindowFrame],
+    single: Callable[[int], FrameResult],
+    previous: SavedWindow | None,
+    camera: PinholeCamera,
+    config: Config,
+) -> SavedWindow:
+    """Fit one window of a track jointly.
+
+    Its seeds are its predecessor's poses on the frames they share and the single-frame fits
+    elsewhere; the predecessor's shape starts the fit, and only a track's first window (no
+    predecessor) tries the fresh prototypes of ``joint.prototypes``.
+
+    Args:
+        track: the track's number; members: the window's frame indices, consecutive.
+        crops: each member's crop (and sub-frame masks).
+        single: frame index -> its single-frame fit.
+        previous: the track's previous window, or None.
+    """
+    seeds, shape_from, before = [], None, {}
+    for index in members:
+        fit = single(index)
+        before[index] = fit.losses
+        if previous is not None and index in previous.result.losses:
+            joint = previous.result
+            seed = Seed(index, joint.state(index), joint.prototype, joint.losses[index]["image"])
+            shape_from = shape_from or seed
+        else:
+            seed = Seed(index, fit.state, fit.prototype, fit.losses["image"])
+        seeds.append(seed)
+    result = fit_window(
+        [crops[i] for i in members],
+        seeds,
+        camera,
+        config.fit,
+        config.joint,
+        config.render,
+        config.video.exposure_fraction,
+        prototypes=() if previous is not None else config.joint.prototypes,
+        shape_from=shape_from,
+    )
+    return SavedWindow(track, result, before)
+
+
+def fit_windows(
+    frames: Iterator[FrameWithBackground],
+    folder: Path,
+    statuses: list[FrameStatus],
+    camera: PinholeCamera,
+    config: Config,
+    device: torch.device,
+    report: Callable[[SavedWindow], None] | None = None,
+) -> list[SavedWindow]:
+    """Fit every window of every track jointly, saving each into the run ``folder``; windows
+    already saved there are reused (the clip is not read at all when all are).
+
+    Args:
+        frames: the clip's frames and backgrounds, in order (read only as far as needed).
+        statuses: every frame's status, as :func:`stages.track.track_and_fit` returned them.
+
+    Returns:
+        every window's fit, in frame order (a window whose fit diverged is left out).
+    """
+    windows = track_windows(statuses, config.joint.window, config.joint.overlap)
+    done: dict[int, SavedWindow] = {}
+    for _, members in windows:
+        path = window_path(folder, members[0])
+        if path.is_file():
+            done[members[0]] = load_window(path)
+    pending = [w for w in windows if w[1][0] not in done]
+    by_index = {s.index: s for s in statuses}
+
+    def single(index: int) -> FrameResult:
+        return load_result(frame_path(folder, index))
+
+    crops: dict[int, WindowFrame] = {}
+    needed = {index for _, members in pending for index in members}
+    for frame in frames if pending else ():
+        if frame.index in needed:
+            box = by_index[frame.index].box
+            assert box is not None  # a fitted frame has its detection
+            crops[frame.index] = window_frame(frame, box, single(frame.index), camera, config, device)
+        while pending and pending[0][1][-1] in crops:
+            track, members = pending.pop(0)
+            earlier = [w for t, w in windows if t == track and w[0] < members[0]]
+            previous = next((done[w[0]] for w in reversed(earlier) if w[0] in done), None)
+            try:
+                window = fit_track_window(track, members, crops, single, previous, camera, config)
+            except RuntimeError as exc:
+                # Non-finite from the first step: the frames keep their single-frame fits.
+                print(f"joint fit of frames {members[0]}-{members[-1]} skipped: {exc}")
+            else:
+                save_window(folder, window)
+                done[members[0]] = window
+                if report is not None:
+                    report(window)
+            keep = {i for _, m in pending for i in m}
+            crops = {i: c for i, c in crops.items() if i in keep}
+        if not pending:
+            break
+    return [done[members[0]] for _, members in windows if members[0] in done]

@@ -1,0 +1,86 @@
+"""Cutting tracks into windows, choosing the window that stands for each frame, and choosing the
+motion model from the single-frame fits."""
+
+from __future__ import annotations
+
+import torch
+
+from sfb_video.config import JointConfig
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.geometry.prototypes import load_prototype
+from sfb_video.joint import Seed, choose_motion
+from sfb_video.model.motion import Motion
+from sfb_video.model.scene import ObjectState
+from stages.joint import frame_windows, track_windows
+from stages.track import FrameStatus
+
+CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
+E = 0.6
+
+
+def _statuses(tracks: list[int | None]) -> list[FrameStatus]:
+    return [
+        FrameStatus(i, "no_object") if t is None else FrameStatus(i, "fitted", (0, 0, 4, 4), track=t)
+        for i, t in enumerate(tracks)
+    ]
+
+
+def test_tracks_are_cut_into_overlapping_windows_that_end_at_the_track_s_end() -> None:
+    statuses = _statuses([0] * 11 + [None, 1, 1, 1, None, 2, 3, 3])
+    windows = track_windows(statuses, size=6, overlap=2)
+    assert windows == [
+        (0, [0, 1, 2, 3, 4, 5]),
+        (0, [4, 5, 6, 7, 8, 9]),
+        (0, [5, 6, 7, 8, 9, 10]),
+        (1, [12, 13, 14]),  # a short track is one window
+        (3, [17, 18]),  # track 2 has one frame: nothing to fit jointly
+    ]
+
+
+def test_each_frame_is_shown_by_the_window_whose_middle_is_nearest() -> None:
+    owner = frame_windows([(0, [0, 1, 2, 3, 4, 5]), (0, [4, 5, 6, 7, 8, 9]), (1, [12, 13])])
+    assert [owner[i] for i in range(10)] == [0, 0, 0, 0, 0, 4, 4, 4, 4, 4]
+    assert owner[12] == owner[13] == 12 and 11 not in owner
+
+
+def _seeds(path: list[torch.Tensor]) -> list[Seed]:
+    """Seeds whose streak ends lie on ``path``: pairs (start, end) of each frame's exposure."""
+    vertices, topology = load_prototype("sphere")
+    seeds = []
+    for k in range(len(path) // 2):
+        x0, x1 = path[2 * k], path[2 * k + 1]
+        state = ObjectState(
+            vertices, topology, torch.full((3, 8, 8), 0.5), Motion(x0, x1 - x0, torch.eye(3), torch.zeros(3))
+        )
+        seeds.append(Seed(k, state, "sphere", 0.05))
+    return seeds
+
+
+def _ends(position, frames: int) -> list[torch.Tensor]:
+    return [position(k + tau * E) for k in range(frames) for tau in (0.0, 1.0)]
+
+
+def test_a_gravity_arc_is_one_smooth_piece() -> None:
+    def arc(t: float) -> torch.Tensor:
+        return torch.tensor([-2.5 + 0.9 * t, -1.0 + 0.05 * t * t, 10.0])
+
+    model, bounce = choose_motion(_seeds(_ends(arc, 6)), 0, 6.0, CAMERA, E, JointConfig())
+    assert (model, bounce) == ("constant_acceleration", None)
+
+
+def test_a_bounce_is_found_in_the_gap_where_the_path_breaks() -> None:
+    def bouncing(t: float) -> torch.Tensor:
+        # Falls until t = 2.8 (in the gap after frame 2), then rises.
+        return torch.tensor([-2.5 + 0.9 * t, 1.5 - 0.8 * abs(t - 2.8), 10.0])
+
+    model, bounce = choose_motion(_seeds(_ends(bouncing, 6)), 0, 6.0, CAMERA, E, JointConfig())
+    assert model == "bounce"
+    assert bounce is not None and 2 + E < bounce < 3
+
+
+def test_a_configured_model_is_used_as_is() -> None:
+    def arc(t: float) -> torch.Tensor:
+        return torch.tensor([-2.5 + 0.9 * t, 0.0, 10.0])
+
+    config = JointConfig(motion="constant_velocity")
+    assert choose_motion(_seeds(_ends(arc, 4)), 0, 4.0, CAMERA, E, config) == ("constant_velocity", None)
