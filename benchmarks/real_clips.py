@@ -1,11 +1,12 @@
 """Real footage, no truth: does the recovered motion explain the streaks, and do frames join?
 
-    python -m benchmarks.real_clips [--frames 8] [--config default] [--set KEY=VALUE ...]
+    python -m benchmarks.real_clips [--frames 8] [--config default] [--set KEY=VALUE ...] [--out DIR]
 
 Processes the first ``--frames`` frames of each clip in ``../shared/data/clips`` once, with the
 joint fit on, and reads both results from the run folder: every frame's single-frame fit
 ("before", ``frames/``) and what the outputs show ("after", the joint fit where it covers the
-frame). Per clip it prints, as medians over fitted frames:
+frame). ``--out`` keeps the run folders there (one per clip) to look at. Per clip it prints, as
+medians over fitted frames:
 
 - travel / streak: the object's travel within the exposure in the image (|u(end) - u(start)|)
   over the streak's length, estimated from the detection box as its longer side minus its
@@ -70,6 +71,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--config", default="default")
     parser.add_argument("--set", nargs="*", default=[])
+    parser.add_argument("--out", type=Path, help="keep the run folders here")
     args = parser.parse_args()
     torch.set_num_threads(2)
     config = load_config(args.config, args.set)
@@ -77,7 +79,7 @@ def main() -> None:
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for clip in sorted(CLIPS.glob("*.avi")):
         with tempfile.TemporaryDirectory() as tmp:
-            out = Path(tmp) / "run"
+            out = (args.out or Path(tmp)) / clip.stem
             start = time.perf_counter()
             options = ProcessOptions(video=clip, out=out, frames=range(args.frames), masks="diff")
             summary = process_clip(options, config, torch.device("cpu"), quiet=True)

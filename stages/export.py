@@ -103,16 +103,34 @@ def _resize(images: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     return out.reshape(*images.shape[:-2], size[1], size[0])
 
 
+def streak_box(result: FrameResult, camera: PinholeCamera) -> Box:
+    """The fit's crop box grown to hold the object's whole path during the exposure (a joint
+    fit's trajectory may run past a detection that saw only part of the streak), within the
+    frame."""
+    motion = result.state.motion
+    _, positions = motion.at(torch.linspace(0, 1, 9))
+    uv, depth = camera.project(positions)
+    reach = camera.fy * float(result.state.vertices.norm(dim=-1).max()) / depth + 2
+    x, y, w, h = result.crop_box
+    x0 = max(0, min(x, math.floor(float((uv[:, 0] - reach).min()))))
+    y0 = max(0, min(y, math.floor(float((uv[:, 1] - reach).min()))))
+    x1 = min(camera.width, max(x + w, math.ceil(float((uv[:, 0] + reach).max())) + 1))
+    y1 = min(camera.height, max(y + h, math.ceil(float((uv[:, 1] + reach).max())) + 1))
+    return x0, y0, x1 - x0, y1 - y0
+
+
 def render_frame(
     frame: FrameWithBackground, result: FrameResult, camera: PinholeCamera, n: int, config: Config
 ) -> Rendered:
-    """Render ``result`` into its crop box and paste it into the frame.
+    """Render ``result`` into its crop box, grown to hold the object's path (:func:`streak_box`),
+    and paste it into the frame.
 
     Outside the box the input frame is kept (so other movers stay as they were); inside it the
     background with the model composited over it replaces the streak. A box wider than
     ``render.export_max_width`` is rendered at that width and the object scaled up onto it.
     """
-    x, y, w, h = result.crop_box
+    box = streak_box(result, camera)
+    x, y, w, h = box
     scale = min(1.0, config.render.export_max_width / w)
     size = (max(1, round(w * scale)), max(1, round(h * scale)))
     patch_bg = as_float(frame.background_pixels[:, y : y + h, x : x + w])
@@ -121,8 +139,8 @@ def render_frame(
     if size != (w, h):
         # Only the object is scaled up; the background keeps the frame's own pixels.
         patches = patch_bg + _resize(patches - small_bg, (w, h))
-    reconstruction = Pasted(frame.pixels, patches.mean(0, keepdim=True), result.crop_box)[0]
-    return Rendered(reconstruction, Pasted(frame.pixels, patches, result.crop_box))
+    reconstruction = Pasted(frame.pixels, patches.mean(0, keepdim=True), box)[0]
+    return Rendered(reconstruction, Pasted(frame.pixels, patches, box))
 
 
 def trajectory_rows(

@@ -20,9 +20,9 @@ from sfb_video.geometry.rotation import axis_angle_to_matrix
 from sfb_video.imageio import write_image
 from sfb_video.model.scene import ObjectState
 from sfb_video.render import MeshRenderer
-from sfb_video.results import load_results
 from sfb_video.run_folder import NOVEL_VIEWS, ensure_folder, novel_view_path
 from sfb_video.video import VideoWriter
+from stages.joint import final_results
 
 SIZE = (320, 240)
 """Width and height of the turntable images."""
@@ -53,7 +53,7 @@ def turntable(state: ObjectState, views: int, config: Config, background: float 
 
 def write_novel_views(folder: Path, config: Config, frames: list[int], views: int) -> list[Path]:
     """Turntables of the meshes of ``frames`` (the best frame when empty); returns the videos written."""
-    results = load_results(folder)
+    results = final_results(folder)
     if not results:
         raise SfbError(f"{folder} holds no fitted frame to render")
     if views < 2:
