@@ -81,6 +81,12 @@ def frame_windows(windows: list[Window]) -> dict[int, int]:
     return {index: first for index, (_, first) in owner.items()}
 
 
+def previous_window(windows: list[Window], done: dict[int, SavedWindow], track: int, first: int) -> SavedWindow | None:
+    """The last fitted window of ``track`` before the one that starts at frame ``first``, or None."""
+    earlier = [frames for t, frames in windows if t == track and frames[0] < first]
+    return next((done[f[0]] for f in reversed(earlier) if f[0] in done), None)
+
+
 def with_joint(result: FrameResult, window: SavedWindow) -> FrameResult:
     """Frame ``result`` with the window's object and pose in place of its single-frame fit."""
     joint = window.result
@@ -207,8 +213,7 @@ def fit_windows(
             crops[frame.index] = window_frame(frame, box, single(frame.index), camera, config, device)
         while pending and pending[0][1][-1] in crops:
             track, members = pending.pop(0)
-            earlier = [w for t, w in windows if t == track and w[0] < members[0]]
-            previous = next((done[w[0]] for w in reversed(earlier) if w[0] in done), None)
+            previous = previous_window(windows, done, track, members[0])
             try:
                 window = fit_track_window(track, members, crops, single, previous, camera, config)
             except RuntimeError as exc:

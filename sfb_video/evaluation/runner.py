@@ -34,7 +34,14 @@ from sfb_video.synth import SyntheticClip
 from stages.background import FrameWithBackground
 from stages.detect import Detection
 from stages.fit import fit_detection
-from stages.joint import fit_track_window, frame_windows, track_windows, window_frame, with_joint
+from stages.joint import (
+    fit_track_window,
+    frame_windows,
+    previous_window,
+    track_windows,
+    window_frame,
+    with_joint,
+)
 from stages.masks import MaskSource
 from stages.track import FrameStatus, join, join_gap, predict
 
@@ -229,8 +236,7 @@ def _joint_rows(
             frame, result, _ = fitted[i]
             inputs = FrameWithBackground(i, _tensor(frame.image), _tensor(frame.background))
             crops[i] = window_frame(inputs, frame.box, result, camera, config, device)
-        earlier = [w for t, w in windows if t == track and w[0] < members[0]]
-        previous = next((done[w[0]] for w in reversed(earlier) if w[0] in done), None)
+        previous = previous_window(windows, done, track, members[0])
         started = time.perf_counter()
         # A window that diverges is left out: its frames keep their single-frame fits.
         with contextlib.suppress(RuntimeError):
