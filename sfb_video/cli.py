@@ -311,15 +311,26 @@ def cmd_eval(args: argparse.Namespace) -> int:
     with open_run(out, "eval", record, overwrite=args.overwrite, keep=lambda f: (f / TABLE).is_file()) as run:
         sequences = _eval_sequences(args)
         masks = _mask_source(args, config, device)
-        runs = [(s, m) for s in sequences for m in modes]
-        frames = sum(min(s.num_frames, args.max_frames or s.num_frames) for s, _ in runs)
+        # The joint mode's seeds are the video mode's fits: one run scores both.
+        both = "video" in modes and "joint" in modes
+        runs = [(s, m) for s in sequences for m in modes if not (both and m == "video")]
+        frames = sum(
+            min(s.num_frames, args.max_frames or s.num_frames) * (2 if both and m == "joint" else 1) for s, m in runs
+        )
         save_config(run.work / CONFIG, config)
         # disable=None: no bar when stderr is not a terminal (logs, CI).
         with tqdm(total=frames, desc="eval", unit="frame", disable=True if args.quiet else None) as bar:
             for done, (sequence, mode) in enumerate(runs, start=1):
                 bar.set_postfix(sequence=sequence.name, mode=mode)
                 rows += run_sequence(
-                    sequence, config, mode, device, args.max_frames, on_frame=lambda _: bar.update(1), masks=masks
+                    sequence,
+                    config,
+                    mode,
+                    device,
+                    args.max_frames,
+                    on_frame=lambda _: bar.update(1),
+                    masks=masks,
+                    with_video=both,
                 )
                 note = "" if done == len(runs) else f"Incomplete: {done} of {len(runs)} sequence runs finished.\n\n"
                 write_tables(run.work, rows, f"{note}Sub-frame masks: {masks.name} ({masks.reason}).\n\n")

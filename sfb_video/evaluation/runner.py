@@ -141,11 +141,14 @@ def run_sequence(
     max_frames: int | None = None,
     on_frame: Callable[[FrameRow], None] | None = None,
     masks: MaskSource | None = None,
+    with_video: bool = False,
 ) -> list[FrameRow]:
     """Fit and score the frames of ``sequence`` in ``mode`` (one of ``MODES``).
 
     Args:
         masks: where the fits' sub-frame masks come from (None: the difference mask).
+        with_video: in ``joint`` mode, also score its warm-started fits as the ``video`` mode's
+            rows (the same fits: one run gives both modes).
         max_frames: stop after this many frames (the first ones), for quick looks.
         on_frame: called with each frame's row as soon as it is scored (progress).
     """
@@ -170,7 +173,8 @@ def run_sequence(
         try:
             warm = previous if mode != "per-frame" else None
             result = fit_benchmark_frame(frame, camera, config, warm, device, masks)
-            estimate = None if mode == "joint" else estimate_subframes(result, frame, camera, config)
+            scored = mode != "joint" or with_video
+            estimate = estimate_subframes(result, frame, camera, config) if scored else None
         except NoObjectError:
             row = FrameRow(sequence.dataset, sequence.name, frame.index, mode, "no_object", 0.0, 0.0, 0.0, 0.0)
             statuses.append(FrameStatus(frame.index, "no_object"))
@@ -193,6 +197,7 @@ def run_sequence(
             )
             if mode == "joint":
                 fitted[frame.index] = (frame, result, seconds)
+            if not scored:
                 continue
             assert estimate is not None
             scores = score_frame(frame, result, estimate, camera, clip)
@@ -200,7 +205,7 @@ def run_sequence(
                 sequence.dataset,
                 sequence.name,
                 frame.index,
-                mode,
+                "video" if mode == "joint" else mode,
                 result.start,
                 seconds=seconds,
                 prototype=result.prototype,
@@ -211,7 +216,15 @@ def run_sequence(
             on_frame(row)
     if mode != "joint" or camera is None:
         return rows
-    return _joint_rows(sequence, statuses, fitted, rows, camera, config, device, clip, on_frame)
+    video_rows = [r for r in rows if r.mode == "video"]
+    unfitted = [r for r in rows if r.mode == "joint"]
+    if with_video:  # a frame with no object scores 0 in both modes
+        for row in unfitted:
+            video_rows.append(dataclasses.replace(row, mode="video"))
+            if on_frame is not None:
+                on_frame(video_rows[-1])
+    joint_rows = _joint_rows(sequence, statuses, fitted, unfitted, camera, config, device, clip, on_frame)
+    return sorted(video_rows, key=lambda r: r.frame) + joint_rows
 
 
 def _joint_rows(

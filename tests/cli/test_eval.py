@@ -57,6 +57,17 @@ def test_the_disc_is_found_where_the_truth_puts_it(evaluated: tuple[Path, Path])
         assert float(r["psnr"]) > 20.0, r
 
 
+def test_the_video_rows_of_a_joint_run_are_the_video_modes_own(evaluated: tuple[Path, Path], tmp_path: Path) -> None:
+    # `--mode all` scores the video mode from the joint mode's seeds instead of fitting twice.
+    root, out = evaluated
+    alone = tmp_path / "video"
+    args = ["eval", "--dataset", "tbd3d", "--root", str(root), "--out", str(alone), "--max-frames", "2"]
+    assert main([*args, "--mode", "video", *QUICK]) == 0
+    measures = ("frame", "status", "tiou", "psnr", "ssim", "prototype")
+    together = [{k: r[k] for k in measures} for r in _rows(out / "frames.csv") if r["mode"] == "video"]
+    assert together == [{k: r[k] for k in measures} for r in _rows(alone / "frames.csv")]
+
+
 def test_the_table_is_complete_and_the_config_kept(evaluated: tuple[Path, Path]) -> None:
     _, out = evaluated
     table = (out / "table.md").read_text()
