@@ -302,7 +302,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     record = {
         "dataset": args.dataset,
         "root": str(Path(args.root).resolve()),
-        "modes": list(modes),
+        "modes": ["video", *modes] if modes == ("joint",) else list(modes),
         "sequences": args.sequence,
         "max_frames": args.max_frames,
     }
@@ -312,7 +312,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         sequences = _eval_sequences(args)
         masks = _mask_source(args, config, device)
         # The joint mode's seeds are the video mode's fits: one run scores both.
-        both = "video" in modes and "joint" in modes
+        both = "joint" in modes
         runs = [(s, m) for s in sequences for m in modes if not (both and m == "video")]
         frames = sum(
             min(s.num_frames, args.max_frames or s.num_frames) * (2 if both and m == "joint" else 1) for s, m in runs
@@ -407,7 +407,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--root", required=True, help="the dataset's folder (synthetic: generated there on first use)"
     )
     evaluate.add_argument("--out", help="output folder (default: runs/eval-<dataset>)")
-    evaluate.add_argument("--mode", choices=["per-frame", "video", "joint", "all"], default="all")
+    evaluate.add_argument(
+        "--mode",
+        choices=["per-frame", "video", "joint", "all"],
+        default="all",
+        help="joint also scores the video mode (its seeds are the video mode's fits)",
+    )
     evaluate.add_argument("--sequence", action="append", help="only this sequence (repeatable)")
     evaluate.add_argument("--max-frames", type=int, help="only the first N frames of each sequence")
     evaluate.set_defaults(func=cmd_eval)
