@@ -6,7 +6,9 @@ The scene: a 320x240 crop, T = 8 poses over one exposure, a prototype filling ab
 the crop, a 100x100 texture. Each row gives median milliseconds per call for the forward pass
 and forward + backward, and the split of one forward + backward between rasterisation (hard
 visibility and band search, no gradient), the differentiable part of the rasteriser and
-shading, and the backward pass. Peak memory is the process's peak resident set size.
+shading, and the backward pass. On the CPU each case runs twice, in one run: with the
+rasteriser's searches as tensor operations (as before numba) and compiled
+(``sfb_video.render.kernels``). Peak memory is the process's peak resident set size.
 """
 
 from __future__ import annotations
@@ -16,7 +18,8 @@ import math
 import resource
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import torch
 
@@ -25,7 +28,7 @@ from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.pose import pose_vertices
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.geometry.rotation import exposure_rotations
-from sfb_video.render import MeshRenderer, rasterize
+from sfb_video.render import MeshRenderer, kernels, rasterize
 from sfb_video.render.shader import shade
 
 
@@ -44,6 +47,17 @@ def _median_ms(fn: Callable[[], object], repeats: int, device: torch.device) -> 
 
 def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+@contextmanager
+def searches(compiled: bool) -> Iterator[None]:
+    """Run the rasteriser's searches compiled (where numba serves the tensors) or as tensor ops."""
+    available = kernels.available
+    kernels.available = available if compiled else (lambda points: False)
+    try:
+        yield
+    finally:
+        kernels.available = available
 
 
 def bench_case(prototype: str, time_steps: int, repeats: int, device: torch.device) -> dict[str, float | str]:
@@ -114,17 +128,22 @@ def main() -> None:
     device = torch.device(args.device)
     base_mb = _peak_rss_mb()
     cases = [("sphere", 8), ("sphere_large", 8), ("torus", 8), ("sphere", 1)]
-    rows = [bench_case(name, t, args.repeats, device) for name, t in cases]
+    modes = ["tensor", "compiled"] if kernels.available(torch.zeros(1, device=device)) else ["tensor"]
+    rows = []
+    for name, t in cases:
+        for mode in modes:
+            with searches(mode == "compiled"):
+                rows.append(bench_case(name, t, args.repeats, device) | {"searches": mode})
     print(
         f"device {device}, torch {torch.__version__}, {torch.get_num_threads()} threads, crop 320x240, texture 100x100"
     )
     print(f"median of {args.repeats} calls, milliseconds; rasterise/shade/backward split one forward+backward\n")
-    header = "| prototype | faces | T | coverage | fwd | fwd+bwd | rasterise | shade | backward |"
+    header = "| prototype | faces | T | coverage | searches | fwd | fwd+bwd | rasterise | shade | backward |"
     print(header)
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---|---:|---:|---:|---:|---:|")
     for r in rows:
         print(
-            f"| {r['prototype']} | {r['faces']} | {r['T']} | {r['coverage']:.2f} | {r['fwd']:.1f} | "
+            f"| {r['prototype']} | {r['faces']} | {r['T']} | {r['coverage']:.2f} | {r['searches']} | {r['fwd']:.1f} | "
             f"{r['fwd+bwd']:.1f} | {r['rasterise']:.1f} | {r['shade']:.1f} | {r['backward']:.1f} |"
         )
     peak = _peak_rss_mb()

@@ -109,7 +109,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     from sfb_video.crop import find_object_box, make_crop
     from sfb_video.export import write_fit
-    from sfb_video.fitter import NoObjectError, fit_frame
+    from sfb_video.fitter import NoObjectError, fit_frame, planned_steps
     from sfb_video.geometry.camera import PinholeCamera
     from sfb_video.imageio import read_image
     from stages.background import FrameWithBackground
@@ -131,7 +131,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     inputs = {"image": str(Path(args.image).resolve()), "background": str(Path(args.background).resolve())}
     with open_run(out, "fit", inputs | {"box": list(box), "tsr": args.tsr}, overwrite=args.overwrite) as run:
         masks = _mask_source(args, config, device).masks(frame, box, crop, config.render.time_steps)
-        steps = config.fit.iterations * len(config.fit.prototypes)
+        steps = planned_steps(config.fit, len(config.fit.prototypes))
         # disable=None: no bar when stderr is not a terminal (logs, CI).
         with tqdm(total=steps, desc="fit", unit="step", disable=True if args.quiet else None, leave=False) as bar:
 

@@ -137,6 +137,9 @@ class FitConfig(_Checked):
     prototypes: tuple[str, ...] = one_of(("sphere",), PROTOTYPE_NAMES)
     """Tried in turn from a cold start; the lowest image loss wins. One: more did not pay on
     single frames (lowest L_I does not pick the best prototype) and cost their number in time."""
+    prototype_trial: float = bounded(0.2, gt=0, le=1)
+    """With several prototypes, all run for this fraction of the steps, then only the one with
+    the lowest image loss goes on (1: each runs to the end)."""
     deform: bool = True
     """Optimise per-vertex offsets (off: the prototype keeps its shape)."""
     learn_texture: bool = True

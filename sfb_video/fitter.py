@@ -1,8 +1,9 @@
 """Shape from Blur's test-time optimisation of one blurred frame (paper, Sec. 3.2).
 
-For each prototype in turn, Adam minimises L = w_I L_I + w_S L_S (or w_D L_D) + w_T L_T +
-w_L L_L over vertex offsets, texture and motion; the parameters with the lowest L_I seen are
-kept, and the prototype with the lowest L_I wins. A warm start (the video pipeline's next
+For each prototype, Adam minimises L = w_I L_I + w_S L_S (or w_D L_D) + w_T L_T + w_L L_L over
+vertex offsets, texture and motion; the parameters with the lowest L_I seen are kept. Several
+prototypes all run for the first ``prototype_trial`` of the steps, then only the one with the
+lowest L_I goes on. A warm start (the video pipeline's next
 frame) starts from a previous result and stops early on a plateau.
 """
 
@@ -100,51 +101,82 @@ def _joint_loss(
     return total, record, rendered
 
 
-def _optimise(
-    crop: Crop,
-    shape: ShapeParams,
-    motion: MotionParams,
-    iterations: int,
-    early_stop: bool,
-    masks: torch.Tensor | None,
-    config: FitConfig,
-    render_config: RenderConfig,
-    on_step: StepCallback | None,
-) -> tuple[tuple[dict, dict] | None, dict[str, float], torch.Tensor | None, list[dict[str, float]]]:
-    renderer = MeshRenderer(crop.camera, render_config)
-    taus = exposure_times(render_config.time_steps, crop.image.device)
-    rotation = (motion.quat0, motion.omega_raw)
-    trained = [p for p in (*shape.parameters(), *motion.parameters()) if p.requires_grad]
-    groups = [
-        {"params": [p for p in trained if all(p is not r for r in rotation)]},
-        {"params": [p for p in trained if any(p is r for r in rotation)], "lr": config.lr_rotation},
-    ]
-    optimiser = torch.optim.Adam(groups, lr=config.lr)
-    best: tuple[dict, dict] | None = None  # state dicts of shape and motion
-    best_record: dict[str, float] = {"image": float("inf")}
-    best_render: torch.Tensor | None = None
-    curve: list[dict[str, float]] = []
-    since_improved = 0
-    for step in range(iterations):
-        optimiser.zero_grad(set_to_none=True)
-        total, record, rendered = _joint_loss(crop, shape, motion, renderer, taus, masks, config, step / iterations)
-        if not torch.isfinite(total):
-            break  # keep the best parameters seen; a NaN step would only spoil them
-        curve.append(record)
-        if on_step is not None:
-            on_step(step, record)
-        if record["image"] < best_record["image"] * (1 - config.plateau_tolerance):
-            since_improved = 0
-        else:
-            since_improved += 1
-        if record["image"] < best_record["image"]:
-            best_record, best_render = record, rendered.detach()
-            best = tuple({k: v.detach().clone() for k, v in m.state_dict().items()} for m in (shape, motion))
-        if early_stop and since_improved >= config.plateau_patience:
-            break
-        total.backward()
-        optimiser.step()
-    return best, best_record, best_render, curve
+class _Optimisation:
+    """Adam on one candidate's shape and motion, run in parts (a trial, then the rest), keeping
+    the parameters at the lowest L_I seen; a warm start stops early on a plateau."""
+
+    def __init__(
+        self,
+        crop: Crop,
+        shape: ShapeParams,
+        motion: MotionParams,
+        iterations: int,
+        early_stop: bool,
+        masks: torch.Tensor | None,
+        config: FitConfig,
+        render_config: RenderConfig,
+    ) -> None:
+        self.crop, self.shape, self.motion, self.masks, self.config = crop, shape, motion, masks, config
+        self.iterations, self.early_stop = iterations, early_stop
+        self.renderer = MeshRenderer(crop.camera, render_config)
+        self.taus = exposure_times(render_config.time_steps, crop.image.device)
+        rotation = (motion.quat0, motion.omega_raw)
+        trained = [p for p in (*shape.parameters(), *motion.parameters()) if p.requires_grad]
+        groups = [
+            {"params": [p for p in trained if all(p is not r for r in rotation)]},
+            {"params": [p for p in trained if any(p is r for r in rotation)], "lr": config.lr_rotation},
+        ]
+        self.optimiser = torch.optim.Adam(groups, lr=config.lr)
+        self.best: tuple[dict, dict] | None = None  # state dicts of shape and motion
+        self.best_record: dict[str, float] = {"image": float("inf")}
+        self.best_render: torch.Tensor | None = None
+        self.curve: list[dict[str, float]] = []
+        self.step, self.since_improved, self.done = 0, 0, False
+
+    def run(self, steps: int, on_step: StepCallback | None) -> None:
+        """Run up to ``steps`` more steps (fewer at the end, on a plateau or a non-finite loss)."""
+        config = self.config
+        for _ in range(min(steps, self.iterations - self.step)):
+            if self.done:
+                return
+            self.optimiser.zero_grad(set_to_none=True)
+            total, record, rendered = _joint_loss(
+                self.crop,
+                self.shape,
+                self.motion,
+                self.renderer,
+                self.taus,
+                self.masks,
+                config,
+                self.step / self.iterations,
+            )
+            if not torch.isfinite(total):
+                self.done = True  # keep the best parameters seen; a NaN step would only spoil them
+                return
+            self.curve.append(record)
+            if on_step is not None:
+                on_step(self.step, record)
+            if record["image"] < self.best_record["image"] * (1 - config.plateau_tolerance):
+                self.since_improved = 0
+            else:
+                self.since_improved += 1
+            if record["image"] < self.best_record["image"]:
+                self.best_record, self.best_render = record, rendered.detach()
+                modules = (self.shape, self.motion)
+                self.best = tuple({k: v.detach().clone() for k, v in m.state_dict().items()} for m in modules)
+            if self.early_stop and self.since_improved >= config.plateau_patience:
+                self.done = True
+                return
+            total.backward()
+            self.optimiser.step()
+            self.step += 1
+
+
+def planned_steps(config: FitConfig, prototypes: int) -> int:
+    """The steps a cold fit of ``prototypes`` prototypes runs at most (for progress bars)."""
+    if prototypes > 1 and config.prototype_trial < 1:
+        return (prototypes - 1) * max(1, round(config.prototype_trial * config.iterations)) + config.iterations
+    return prototypes * config.iterations
 
 
 def _oriented(streak: Streak, motion: Motion, crop: Crop) -> Streak:
@@ -215,10 +247,8 @@ def fit_frame(
     device = crop.image.device
     start = time.perf_counter()
     names = (warm.prototype,) if warm is not None else config.prototypes
-    best: tuple[float, str, tuple[dict, dict], dict[str, float], torch.Tensor, ShapeParams, MotionParams] | None
-    best = None
-    curves: dict[str, list[dict[str, float]]] = {}
     learnt = (config.deform, config.learn_texture)
+    candidates: dict[str, _Optimisation] = {}
     for name in names:
         proto, topology = load_prototype(name)
         topology = topology.to(device)
@@ -240,16 +270,26 @@ def fit_frame(
         else:
             motion.start_at_streak(streak_from_mask(crop.object_mask))
         iterations = config.warm_iterations if warm is not None else config.iterations
-        with deterministic(device):
-            params, record, rendered, curve = _optimise(
-                crop, shape, motion, iterations, warm is not None, masks, config, render_config, on_step
-            )
-        curves[name] = curve
-        if params is not None and (best is None or record["image"] < best[0]):
-            best = (record["image"], name, params, record, rendered, shape, motion)
-    if best is None:
+        candidates[name] = _Optimisation(
+            crop, shape, motion, iterations, warm is not None, masks, config, render_config
+        )
+    with deterministic(device):
+        if len(candidates) > 1 and config.prototype_trial < 1:
+            # Every prototype for the trial's steps, then only the one with the lowest L_I.
+            for fit in candidates.values():
+                fit.run(max(1, round(config.prototype_trial * fit.iterations)), on_step)
+            leader = min(candidates, key=lambda n: candidates[n].best_record["image"])
+            candidates[leader].run(candidates[leader].iterations, on_step)
+        else:
+            for fit in candidates.values():
+                fit.run(fit.iterations, on_step)
+    fitted = {n: f for n, f in candidates.items() if f.best is not None and f.best_render is not None}
+    if not fitted:
         raise SfbError("the fit diverged from its first step (non-finite loss); check the input images")
-    _, name, params, record, rendered, shape, motion = best
+    name = min(fitted, key=lambda n: fitted[n].best_record["image"])
+    fit = fitted[name]
+    params, record, rendered, shape, motion = fit.best, fit.best_record, fit.best_render, fit.shape, fit.motion
+    curves = {n: f.curve for n, f in candidates.items()}
     shape.load_state_dict(params[0])
     motion.load_state_dict(params[1])
     with torch.no_grad():

@@ -19,6 +19,7 @@ compete with the seeded mesh for the first part of the fit and the lowest joint 
 
 from __future__ import annotations
 
+import copy
 import statistics
 import time
 from collections.abc import Callable
@@ -366,13 +367,13 @@ def fit_window(
     taus = exposure_times(render_config.time_steps, device)
     learnt = (fit_config.deform, fit_config.learn_texture)
 
+    path = _path_params(model, bounce, end, camera, ref_px, exposure_fraction, config, fit_config.max_rotation_deg)
+    _fit_path(path, seeds, first, exposure_fraction, config.path_steps)
+    path.load_rotation(rot0, spin)
+
     def candidate(name: str | None) -> tuple[str, _WindowFit]:
         torch.manual_seed(fit_config.seed)
-        params = _path_params(
-            model, bounce, end, camera, ref_px, exposure_fraction, config, fit_config.max_rotation_deg
-        )
-        _fit_path(params, seeds, first, exposure_fraction, config.path_steps)
-        params.load_rotation(rot0, spin)
+        params = copy.deepcopy(path)
         if name is None:
             proto, topology = load_prototype(best_seed.prototype)
             shape = ShapeParams(best_seed.state.vertices, topology, best_seed.state.texture.shape[-1], *learnt)

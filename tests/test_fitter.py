@@ -17,7 +17,7 @@ from sfb_video.checks import SfbError
 from sfb_video.config import load_config
 from sfb_video.crop import make_crop
 from sfb_video.evaluation.synthetic import FrameScore, crop_masks, fit_synthetic_frame, score_fit, synthetic_crop
-from sfb_video.fitter import NoObjectError, WarmStart, fit_frame
+from sfb_video.fitter import NoObjectError, WarmStart, fit_frame, planned_steps
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import axis_angle_to_matrix
 from sfb_video.model.motion import Motion
@@ -159,13 +159,27 @@ def test_the_fit_runs_deterministic_kernels_and_restores_the_setting_after() -> 
 
 
 def test_loss_curve_is_reported_and_the_kept_fit_is_the_best_seen() -> None:
-    config = load_config("fast", ["fit.iterations=30", "fit.prototypes=[sphere, torus]"])
+    config = load_config("fast", ["fit.iterations=30", "fit.prototypes=[sphere, torus]", "fit.prototype_trial=1"])
     fit = fit_frame(synthetic_crop(_clip("ball", 0), 0, config), config.fit, config.render)
     assert set(fit.curves) == {"sphere", "torus"}
     assert all(len(c) == 30 for c in fit.curves.values())
     best = min(r["image"] for c in fit.curves.values() for r in c)
     assert fit.losses["image"] == pytest.approx(best)
     assert fit.prototype == min(fit.curves, key=lambda k: min(r["image"] for r in fit.curves[k]))
+
+
+def test_a_prototype_trial_goes_on_with_the_leader_only() -> None:
+    overrides = ["fit.iterations=30", "fit.prototypes=[sphere, torus, sphere_large]", "fit.prototype_trial=0.2"]
+    config = load_config("fast", overrides)
+    crop = synthetic_crop(_clip("ball", 0), 0, config)
+    fit = fit_frame(crop, config.fit, config.render)
+    leader = min(fit.curves, key=lambda k: min(r["image"] for r in fit.curves[k][:6]))
+    assert fit.prototype == leader and len(fit.curves[leader]) == 30
+    assert sorted(len(c) for c in fit.curves.values()) == [6, 6, 30]
+    assert planned_steps(config.fit, 3) == 42
+    # The leader's run goes on from its trial: the same as running it alone from the start.
+    alone = load_config("fast", ["fit.iterations=30", f"fit.prototypes=[{leader}]"])
+    assert fit.losses == fit_frame(crop, alone.fit, alone.render).losses
 
 
 def _images() -> tuple[torch.Tensor, torch.Tensor, PinholeCamera]:

@@ -43,7 +43,7 @@ from stages.joint import (
     with_joint,
 )
 from stages.masks import MaskSource
-from stages.track import FrameStatus, join, join_gap, predict
+from stages.track import FrameStatus, join, join_gap, predict, ray_gap
 
 MODES = ("per-frame", "video", "joint")
 
@@ -188,8 +188,10 @@ def run_sequence(
                     before, result = join(previous, result, camera, e, track_length == 1)
                     if mode == "joint":
                         fitted[previous.index] = (fitted[previous.index][0], before, fitted[previous.index][2])
-                    # One track for the joint fit only where the fits meet (within two diameters).
-                    joined = join_gap(before, result, camera, e) < 2 * predict(before.state.motion, camera).diameter
+                    # One track for the joint fit only where the fits meet (within two diameters),
+                    # at the told exposure fraction or, as the joint fit learns it, at any.
+                    gap = min(join_gap(before, result, camera, e), ray_gap(before, result, camera))
+                    joined = gap < 2 * predict(before.state.motion, camera).diameter
                 tracks += not joined
                 previous, track_length = result, track_length + 1
             statuses.append(

@@ -23,6 +23,7 @@ from sfb_video.checks import check_in_front
 from sfb_video.config import RenderConfig
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology, check_vertices
+from sfb_video.render import kernels
 from sfb_video.render.barycentric import MIN_AREA_PX2, cross2, segment_closest
 from sfb_video.render.fragments import Fragments
 
@@ -131,17 +132,22 @@ def _visible_faces(
     keep = (area.abs() > MIN_AREA_PX2) & (front | (not topology.is_closed()))
     t_idx, f_idx = torch.nonzero(keep, as_tuple=True)
     tri = tri[t_idx, f_idx]
-    planes = _inverse_depth_planes(tri, 1.0 / depth[t_idx[:, None], faces[f_idx]])
-    owner, xy = _scanline_spans(tri, width, height)
-    pl = planes[owner]
-    inv_z = pl[:, 0] * xy[:, 0] + pl[:, 1] * xy[:, 1] + pl[:, 2]
-    key = (t_idx[owner] * height + xy[:, 1]) * width + xy[:, 0]
-    # The nearest surface has the largest 1/z.
-    win = _argmin_per_key(key, -inv_z, num_t * height * width)
+    corner_inv_z = 1.0 / depth[t_idx[:, None], faces[f_idx]]
+    if kernels.available(uv):
+        pix, cand, inv_z = kernels.nearest_faces(tri, corner_inv_z, t_idx, (num_t, height, width))
+    else:
+        planes = _inverse_depth_planes(tri, corner_inv_z)
+        owner, xy = _scanline_spans(tri, width, height)
+        pl = planes[owner]
+        inv_z = pl[:, 0] * xy[:, 0] + pl[:, 1] * xy[:, 1] + pl[:, 2]
+        key = (t_idx[owner] * height + xy[:, 1]) * width + xy[:, 0]
+        # The nearest surface has the largest 1/z.
+        win = _argmin_per_key(key, -inv_z, num_t * height * width)
+        pix, cand, inv_z = key[win], owner[win], inv_z[win]
     zbuf = torch.full((num_t * height * width,), math.inf, device=uv.device, dtype=uv.dtype)
-    zbuf[key[win]] = 1.0 / inv_z[win]
+    zbuf[pix] = 1.0 / inv_z
     candidates = torch.stack((t_idx, f_idx), -1)
-    return key[win], owner[win], candidates, zbuf.reshape(num_t, height, width), front
+    return pix, cand, candidates, zbuf.reshape(num_t, height, width), front
 
 
 def _weight_planes(
@@ -196,6 +202,10 @@ def _contour_band(
     contour = ~has_two | (front0 != front1)  # (T, E)
     t_idx, e_idx = torch.nonzero(contour, as_tuple=True)
     a, b = uv[t_idx, edges[e_idx, 0]], uv[t_idx, edges[e_idx, 1]]
+    if kernels.available(uv):
+        pix, owner = kernels.nearest_edges(a, b, t_idx, covered, radius, (num_t, height, width))
+        side = (~(front0[t_idx[owner], e_idx[owner]]) & has_two[e_idx[owner]]).long()
+        return pix, t_idx[owner], e_idx[owner], side
     lo = (torch.minimum(a, b) - radius).ceil().long()
     hi = (torch.maximum(a, b) + radius).floor().long()
     lo = torch.maximum(lo, torch.zeros_like(lo))

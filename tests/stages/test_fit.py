@@ -14,7 +14,7 @@ from sfb_video.geometry.rotation import axis_angle_to_matrix, rotation_angle_deg
 from sfb_video.model.motion import Motion, continue_motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.results import FrameResult, load_result, save_result
-from stages.track import join, predict
+from stages.track import join, join_gap, predict, ray_gap
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
 
@@ -66,6 +66,19 @@ def test_join_may_reverse_the_first_frame_of_a_track() -> None:
     assert b is second
     kept, _ = join(first, second, CAMERA, 1.0, may_flip_previous=False)
     assert kept is first
+
+
+def test_the_ray_gap_joins_streaks_a_short_shutter_leaves_far_apart() -> None:
+    first = _result(0, _motion((0.0, 0.0, 5.0), (0.3, 0.0, 0.0)))
+    # A shutter open 30% of the interval: the next streak starts 1 / 0.3 streak lengths later.
+    ahead = _result(1, _motion((1.0, 0.0, 5.0), (0.3, 0.0, 0.0)))
+    assert join_gap(first, ahead, CAMERA, 1.0) > 30  # told e = 1, the gap looks like a miss
+    assert join_gap(first, ahead, CAMERA, 0.3) < 1e-3
+    assert ray_gap(first, ahead, CAMERA) < 1e-3
+    aside = _result(1, _motion((1.0, 0.5, 5.0), (0.3, 0.0, 0.0)))
+    assert math.isclose(ray_gap(first, aside, CAMERA), CAMERA.fy * 0.5 / 5, rel_tol=1e-4)
+    behind = _result(1, _motion((-0.5, 0.0, 5.0), (0.3, 0.0, 0.0)))
+    assert math.isclose(ray_gap(first, behind, CAMERA), CAMERA.fx * 0.8 / 5, rel_tol=1e-4)
 
 
 def test_results_round_trip_through_the_run_folder(tmp_path) -> None:
