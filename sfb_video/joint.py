@@ -165,6 +165,24 @@ def _interp(x: torch.Tensor, xp: torch.Tensor, fp: torch.Tensor) -> torch.Tensor
     return f0 + w * (f1 - f0)
 
 
+def measured_exposure(seeds: list[Seed], camera: PinholeCamera) -> float | None:
+    """The exposure fraction the seeds show: the median over consecutive frames of a streak's
+    length in the image over the distance from its start to the next frame's start (a shutter
+    open for the fraction e of the interval draws e of the way). None without two consecutive
+    seeds that move."""
+    ratios = []
+    by_index = {s.index: s.state.motion for s in seeds}
+    for index, motion in by_index.items():
+        following = by_index.get(index + 1)
+        if following is None:
+            continue
+        uv = camera.project(torch.stack((motion.x0, motion.x0 + motion.dx, following.x0)))[0]
+        step = float((uv[2] - uv[0]).norm())
+        if step > 1.0:
+            ratios.append(float((uv[1] - uv[0]).norm()) / step)
+    return min(max(statistics.median(ratios), 0.05), 1.0) if ratios else None
+
+
 def _path_params(
     model: str,
     bounce: float | None,
@@ -343,7 +361,8 @@ def fit_window(
         frames: the window's frames, in time order (consecutive frames of one track).
         seeds: single-frame fits of (some of) these frames, in the track's time direction.
         camera: the clip's full-frame camera.
-        exposure_fraction: e at the start (learnt unless ``config.learn_exposure`` is off).
+        exposure_fraction: e, kept when ``config.learn_exposure`` is off; else learnt, starting
+            from what the seeds measure (:func:`measured_exposure`) or, without, from this.
         prototypes: fresh prototypes (grey, undeformed) that compete with the best seed's mesh
             for the first ``config.trial_fraction`` of the steps; the lowest mean L_I goes on.
         shape_from: the seed whose mesh, texture and rotation the fit starts from (default: the
@@ -358,6 +377,11 @@ def fit_window(
     first = frames[0].index
     start = time.perf_counter()
     end = frames[-1].index - first + 1.0
+    if config.learn_exposure:
+        # The seeds' streaks and spacing measure e better than the configured start, which may be
+        # far off (a short shutter taken for an open one puts each streak's end at the next
+        # frame's start, and the path then has to jump).
+        exposure_fraction = measured_exposure(seeds, camera) or exposure_fraction
     model, bounce = choose_motion(seeds, first, end, camera, exposure_fraction, config)
     ref_px = statistics.median(_apparent_px(s.state.motion, camera) for s in seeds)
     best_seed = shape_from or min(seeds, key=lambda s: s.image_loss)

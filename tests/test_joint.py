@@ -14,7 +14,7 @@ from sfb_video.config import load_config
 from sfb_video.crop import make_crop
 from sfb_video.evaluation.synthetic import score_state
 from sfb_video.geometry.prototypes import load_prototype
-from sfb_video.joint import JointResult, Seed, WindowFrame, fit_window
+from sfb_video.joint import JointResult, Seed, WindowFrame, fit_window, measured_exposure
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip
@@ -55,15 +55,16 @@ def _frames(clip: SyntheticClip) -> list[WindowFrame]:
     return frames
 
 
-def _seeds(clip: SyntheticClip, depth_scale: list[float]) -> list[Seed]:
+def _seeds(clip: SyntheticClip, depth_scale: list[float], travel: float = 1.0) -> list[Seed]:
     """Grey spheres on the true streaks, each frame's depth scaled (its image unchanged): what
-    single-frame fits give, which see the streak well and its depth poorly."""
+    single-frame fits give, which see the streak well and its depth poorly; ``travel`` scales
+    the travel within each exposure."""
     vertices, topology = load_prototype("sphere")
     grey = torch.full((3, CONFIG.fit.texture_size, CONFIG.fit.texture_size), 0.5)
     seeds = []
     for truth, scale in zip(clip.truth, depth_scale, strict=True):
         x0, dx = (torch.tensor(v, dtype=torch.float32) for v in (truth.motion.x0, truth.motion.dx))
-        motion = Motion(scale * x0, scale * dx, torch.eye(3), torch.zeros(3))
+        motion = Motion(scale * x0, scale * travel * dx, torch.eye(3), torch.zeros(3))
         seeds.append(Seed(truth.index, ObjectState(vertices, topology, grey, motion), "sphere", 0.1))
     return seeds
 
@@ -83,6 +84,22 @@ def joint(clip: SyntheticClip) -> tuple[JointResult, list[Seed]]:
 
 def test_the_exposure_fraction_is_learnt_within_0_1(joint: tuple[JointResult, list[Seed]]) -> None:
     result, _ = joint
+    assert abs(result.trajectory.exposure_fraction - TRUE_EXPOSURE) < 0.1
+
+
+def test_the_seeds_measure_the_exposure_fraction(clip: SyntheticClip) -> None:
+    # Streak length over the spacing of consecutive starts, in the image: depth does not matter.
+    assert measured_exposure(_seeds(clip, [0.75, 1.3, 0.8, 1.25]), clip.camera) == pytest.approx(
+        TRUE_EXPOSURE, abs=0.01
+    )
+    assert measured_exposure(_seeds(clip, [1.0] * 4, travel=0.5), clip.camera) == pytest.approx(0.35, abs=0.01)
+    assert measured_exposure(_seeds(clip, [1.0] * 4)[::2], clip.camera) is None  # no consecutive frames
+
+
+def test_the_exposure_fraction_is_learnt_past_short_seeds(clip: SyntheticClip) -> None:
+    # Single-frame fits that see half the travel measure e = 0.35; the frames' images correct it.
+    seeds = _seeds(clip, [1.0] * 4, travel=0.5)
+    result = fit_window(_frames(clip), seeds, clip.camera, CONFIG.fit, CONFIG.joint, CONFIG.render, 1.0)
     assert abs(result.trajectory.exposure_fraction - TRUE_EXPOSURE) < 0.1
 
 
