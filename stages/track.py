@@ -62,15 +62,19 @@ def join_gap(previous: FrameResult, current: FrameResult, camera: PinholeCamera,
     return float((uv[0] - uv[1]).norm())
 
 
-def ray_gap(previous: FrameResult, current: FrameResult, camera: PinholeCamera) -> float:
-    """Pixels between where ``current``'s exposure starts and the half-line on which
-    ``previous``'s streak goes on past its end: the join gap for any exposure fraction, where
-    the shutter is not known (a short one leaves a long gap between streaks)."""
+def ray_gap(
+    previous: FrameResult, current: FrameResult, camera: PinholeCamera, min_exposure_fraction: float = 0.2
+) -> float:
+    """Pixels between where ``current``'s exposure starts and the segment on which
+    ``previous``'s streak goes on past its end for any exposure fraction down to
+    ``min_exposure_fraction``: the join gap where the shutter is not known (a short one leaves a
+    long gap between streaks; e leaves 1 / e - 1 streak lengths)."""
     motion = previous.state.motion
     uv = camera.project(torch.stack((motion.x0, motion.x0 + motion.dx, current.state.motion.x0)))[0]
     direction = uv[1] - uv[0]
     along = float(((uv[2] - uv[1]) @ direction) / direction.square().sum().clamp_min(1e-12))
-    return float((uv[2] - uv[1] - max(along, 0.0) * direction).norm())
+    gaps = (current.index - previous.index) / min_exposure_fraction - 1
+    return float((uv[2] - uv[1] - min(max(along, 0.0), gaps) * direction).norm())
 
 
 def join(

@@ -79,6 +79,9 @@ def test_the_ray_gap_joins_streaks_a_short_shutter_leaves_far_apart() -> None:
     assert math.isclose(ray_gap(first, aside, CAMERA), CAMERA.fy * 0.5 / 5, rel_tol=1e-4)
     behind = _result(1, _motion((-0.5, 0.0, 5.0), (0.3, 0.0, 0.0)))
     assert math.isclose(ray_gap(first, behind, CAMERA), CAMERA.fx * 0.8 / 5, rel_tol=1e-4)
+    # Beyond what a shutter open 20% of the interval leaves (4 streak lengths past the end).
+    far = _result(1, _motion((2.0, 0.0, 5.0), (0.3, 0.0, 0.0)))
+    assert math.isclose(ray_gap(first, far, CAMERA), CAMERA.fx * 0.5 / 5, rel_tol=1e-4)
 
 
 def test_results_round_trip_through_the_run_folder(tmp_path) -> None:
