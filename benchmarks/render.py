@@ -9,11 +9,16 @@ visibility and band search, no gradient), the differentiable part of the rasteri
 shading, and the backward pass. On the CPU each case runs twice, in one run: with the
 rasteriser's searches as tensor operations (as before numba) and compiled
 (``sfb_video.render.kernels``). Peak memory is the process's peak resident set size.
+
+A second table times one whole fit step (render, composite, every loss term, backward, Adam)
+of the default preset on a generated 320x240 frame's crop as the pipeline makes it (a ball
+about 40 px across, so the crop keeps its native resolution), for a cold start's sphere.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import resource
 import statistics
@@ -23,13 +28,18 @@ from contextlib import contextmanager
 
 import torch
 
-from sfb_video.config import RenderConfig
+from sfb_video.config import RenderConfig, load_config
+from sfb_video.evaluation.synthetic import synthetic_crop
+from sfb_video.fitter import Optimisation
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.pose import pose_vertices
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.geometry.rotation import exposure_rotations
+from sfb_video.model.motion import MotionParams, streak_from_mask
+from sfb_video.model.shape import ShapeParams
 from sfb_video.render import MeshRenderer, kernels, rasterize
 from sfb_video.render.shader import shade
+from sfb_video.synth import ClipSpec, generate_clip
 
 
 def _median_ms(fn: Callable[[], object], repeats: int, device: torch.device) -> float:
@@ -120,6 +130,29 @@ def bench_case(prototype: str, time_steps: int, repeats: int, device: torch.devi
     }
 
 
+def bench_fit_step(repeats: int, device: torch.device) -> dict[str, float | str]:
+    """Median milliseconds of one fit step of the default preset at the pipeline's crop."""
+    config = load_config("default")
+    clip = generate_clip(ClipSpec(shape="ball", size_px_range=(38.0, 42.0), speed_range=(2.0, 2.2), seed=3))
+    crop = synthetic_crop(clip, 0, config)
+    crop = dataclasses.replace(
+        crop,
+        image=crop.image.to(device),
+        background=crop.background.to(device),
+        object_mask=crop.object_mask.to(device),
+    )
+    proto, topology = load_prototype("sphere")
+    fit = config.fit
+    shape = ShapeParams(proto, topology.to(device), fit.texture_size, fit.deform, fit.learn_texture).to(device)
+    motion = MotionParams(crop.camera, fit.size_range, fit.max_size_ratio, fit.max_rotation_deg, fit.init_size)
+    motion = motion.to(device)
+    motion.start_at_streak(streak_from_mask(crop.object_mask))
+    step = Optimisation(crop, shape, motion, 10 * repeats + 10, False, None, fit, config.render)
+    ms = _median_ms(lambda: step.run(1, None), repeats, device)
+    height, width = crop.image.shape[1:]
+    return {"crop": f"{width}x{height}", "T": config.render.time_steps, "texture": fit.texture_size, "step": ms}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=20)
@@ -146,6 +179,13 @@ def main() -> None:
             f"| {r['prototype']} | {r['faces']} | {r['T']} | {r['coverage']:.2f} | {r['searches']} | {r['fwd']:.1f} | "
             f"{r['fwd+bwd']:.1f} | {r['rasterise']:.1f} | {r['shade']:.1f} | {r['backward']:.1f} |"
         )
+    print("\none fit step of the default preset (cold start, sphere), median ms\n")
+    print("| crop | T | texture | searches | step |")
+    print("|---|---:|---:|---|---:|")
+    for mode in modes:
+        with searches(mode == "compiled"):
+            r = bench_fit_step(args.repeats, device)
+        print(f"| {r['crop']} | {r['T']} | {r['texture']} | {mode} | {r['step']:.1f} |")
     peak = _peak_rss_mb()
     print(f"\npeak resident memory: {peak:.0f} MB for the process, {peak - base_mb:.0f} MB added by rendering")
     if device.type == "cuda":

@@ -101,7 +101,7 @@ def _joint_loss(
     return total, record, rendered
 
 
-class _Optimisation:
+class Optimisation:
     """Adam on one candidate's shape and motion, run in parts (a trial, then the rest), keeping
     the parameters at the lowest L_I seen; a warm start stops early on a plateau."""
 
@@ -248,7 +248,7 @@ def fit_frame(
     start = time.perf_counter()
     names = (warm.prototype,) if warm is not None else config.prototypes
     learnt = (config.deform, config.learn_texture)
-    candidates: dict[str, _Optimisation] = {}
+    candidates: dict[str, Optimisation] = {}
     for name in names:
         proto, topology = load_prototype(name)
         topology = topology.to(device)
@@ -270,9 +270,7 @@ def fit_frame(
         else:
             motion.start_at_streak(streak_from_mask(crop.object_mask))
         iterations = config.warm_iterations if warm is not None else config.iterations
-        candidates[name] = _Optimisation(
-            crop, shape, motion, iterations, warm is not None, masks, config, render_config
-        )
+        candidates[name] = Optimisation(crop, shape, motion, iterations, warm is not None, masks, config, render_config)
     with deterministic(device):
         if len(candidates) > 1 and config.prototype_trial < 1:
             # Every prototype for the trial's steps, then only the one with the lowest L_I.

@@ -72,6 +72,7 @@ from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.imageio import to_uint8
 from sfb_video.model.formation import exposure_times
 from sfb_video.model.scene import ObjectState
+from sfb_video.timing import timed
 
 APPLICATION_ID = "sfb-video"
 FRAME, SUBFRAME, STEP = "frame", "subframe", "step"
@@ -112,6 +113,7 @@ class Recorder(AtomicOutput):
         SfbError: if the temporary file cannot be created.
     """
 
+    @timed("recording")
     def __init__(self, path: str | Path, camera: PinholeCamera, name: str, *, recording_id: str | None = None) -> None:
         self.path = Path(path)
         self.camera = camera
@@ -139,6 +141,7 @@ class Recorder(AtomicOutput):
     # ----------------------------------------------------------------------------------------------
     # Logging
 
+    @timed("recording")
     def log_frame(self, index: int, image: torch.Tensor, background: torch.Tensor) -> None:
         """Log frame ``index``: the input ``image`` and the ``background``, both (3, H, W) in [0, 1]."""
         self._check_image(image, "image")
@@ -148,6 +151,7 @@ class Recorder(AtomicOutput):
         self._log("world/camera/image", _jpeg(image))
         self._log("background", _jpeg(background))
 
+    @timed("recording")
     def log_detection(self, index: int, box: Box | None, mask: torch.Tensor | None) -> None:
         """Log the detection of frame ``index``.
 
@@ -168,6 +172,7 @@ class Recorder(AtomicOutput):
             ids = (mask.detach().float().cpu() > 0.5).numpy().astype(np.uint8) * MASK_CLASS
             self._log("world/camera/image/mask", rr.SegmentationImage(ids, opacity=0.5))
 
+    @timed("recording")
     def log_fit(
         self,
         index: int,
@@ -227,6 +232,7 @@ class Recorder(AtomicOutput):
                 strict=True,
             )
 
+    @timed("recording")
     def log_masks(self, index: int, source: str, box: Box, masks: torch.Tensor | None, n: int) -> None:
         """Log which masks the fit of frame ``index`` used and, when it used sub-frame masks, show them.
 
@@ -261,6 +267,7 @@ class Recorder(AtomicOutput):
             self._log("world/camera/image/subframe_mask", rr.SegmentationImage(ids, opacity=0.5))
         self._masks_shown = True
 
+    @timed("recording")
     def log_trajectory(self, points: np.ndarray) -> None:
         """Log the (P, 3) 3D positions so far at the last frame logged, replacing the previous ones."""
         if self._frame is None:
@@ -281,6 +288,7 @@ class Recorder(AtomicOutput):
     # ----------------------------------------------------------------------------------------------
     # Finishing
 
+    @timed("recording")
     def close(self) -> None:
         """Finish the file and move it onto ``path``. Does nothing if already closed or aborted."""
         if self._tmp is None:

@@ -22,6 +22,7 @@ import torch
 from sfb_video.checks import ConfigError, SfbError
 from sfb_video.config import VideoConfig
 from sfb_video.imageio import as_float, read_image
+from sfb_video.timing import timed, timed_iter
 from stages.read import Frame, read_frames
 
 
@@ -84,6 +85,7 @@ def running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBa
         previous.append(frame.image)
 
 
+@timed("background")
 def global_median(path: Path, samples: int, frame_count: int | None) -> torch.Tensor:
     """(3, H, W) float32 median of up to ``samples`` frames spread evenly over the clip at ``path``."""
     if samples < 1:
@@ -125,15 +127,18 @@ def with_backgrounds(
     """
     stream = read_frames(path, frames)
     if background is not None:
-        return fixed_background(stream, read_image(background))
+        return timed_iter("background", fixed_background(stream, read_image(background)))
     if config.background == "running":
         if frames is None:
-            return running_median(stream, config.background_window)
+            return timed_iter("background", running_median(stream, config.background_window))
         # The frames around the range make its backgrounds, as in a run over the whole clip: a
         # short range alone has too few frames for a median without the object.
         window = config.background_window
         wider = range(max(0, frames.start - window), max(frames.stop, frames.start + window + 1))
-        return (f for f in running_median(read_frames(path, wider), window) if f.index in frames)
+        ranged = (f for f in running_median(read_frames(path, wider), window) if f.index in frames)
+        return timed_iter("background", ranged)
     if config.background == "global":
-        return fixed_background(stream, global_median(path, config.global_samples, frame_count))
+        return timed_iter(
+            "background", fixed_background(stream, global_median(path, config.global_samples, frame_count))
+        )
     raise ConfigError(f"video.background must be 'running' or 'global', got {config.background!r}")

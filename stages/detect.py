@@ -21,6 +21,7 @@ import torch
 from sfb_video.config import DetectConfig
 from sfb_video.crop import Box
 from sfb_video.imageio import as_float
+from sfb_video.timing import timed
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,7 @@ DIFFERENCE_BAND_VALUES = 1 << 22
 float temporaries stay small for any frame size."""
 
 
+@timed("detect")
 def difference_mask(image: torch.Tensor, background: torch.Tensor, config: DetectConfig) -> torch.Tensor:
     """(H, W) bool: ||I - B||_2 > threshold over RGB, opened by an ``open_px`` square.
 
@@ -75,6 +77,7 @@ def difference_mask(image: torch.Tensor, background: torch.Tensor, config: Detec
     return _opened(out.numpy(), config)
 
 
+@timed("detect")
 def moving_mask(mask: torch.Tensor, neighbours: list[torch.Tensor], config: DetectConfig) -> torch.Tensor:
     """(H, W) bool: the pixels of ``mask`` that differ in none of the ``neighbours`` (grown by
     ``motion_px``), opened again. Removing them pixel by pixel, not blob by blob, keeps a streak
@@ -105,6 +108,7 @@ def detect(
     return choose_blob(index, moving_mask(mask, neighbours, config), prediction, config)
 
 
+@timed("detect")
 def choose_blob(
     index: int, moving: torch.Tensor, prediction: Prediction | None, config: DetectConfig
 ) -> Detection | None:

@@ -19,11 +19,13 @@ from sfb_video.fitter import WarmStart, fit_frame
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import continue_motion
 from sfb_video.results import FrameResult
+from sfb_video.timing import timed
 from stages.background import FrameWithBackground
 from stages.detect import Detection
 from stages.masks import MaskSource, orient_masks
 
 
+@timed("fit")
 def fit_detection(
     frame: FrameWithBackground,
     detection: Detection,

@@ -36,6 +36,7 @@ from sfb_video.results import (
     save_window,
 )
 from sfb_video.run_folder import frame_path, window_path
+from sfb_video.timing import timed
 from stages.background import FrameWithBackground
 from stages.track import FrameStatus
 
@@ -173,6 +174,7 @@ def fit_track_window(
     return SavedWindow(track, result, before)
 
 
+@timed("joint")
 def fit_windows(
     frames: Iterator[FrameWithBackground],
     folder: Path,

@@ -36,6 +36,7 @@ from sfb_video.run_folder import (
     saved_frames,
     window_path,
 )
+from sfb_video.timing import timed
 from sfb_video.video import VideoInfo
 from stages.background import with_backgrounds
 from stages.export import Exported, export_frames, write_csv
@@ -122,6 +123,7 @@ def read_run(folder: Path) -> tuple[dict, list[FrameStatus]]:
     ]
 
 
+@timed("export")
 def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu") -> dict:
     """Write every export of a run whose frames are fitted, ``summary.json`` last; return the summary."""
     record, statuses = read_run(folder)

@@ -15,6 +15,7 @@ import torch
 
 from sfb_video.checks import SfbError
 from sfb_video.config import VideoConfig
+from sfb_video.timing import timed_iter
 from sfb_video.video import VideoInfo, VideoReader
 
 MIN_SIDE = 16
@@ -58,6 +59,10 @@ def read_frames(path: Path, frames: range | None = None) -> Iterator[Frame]:
     Raises:
         SfbError: when the file cannot be decoded or holds no frame.
     """
+    return timed_iter("read", _decode(path, frames))
+
+
+def _decode(path: Path, frames: range | None) -> Iterator[Frame]:
     with VideoReader(path, compact=True) as reader:
         for index, image in enumerate(reader):
             if frames is not None and index >= frames.stop:

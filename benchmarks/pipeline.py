@@ -1,0 +1,110 @@
+"""The whole pipeline on one fixed clip: frames per second, seconds per stage, peak memory.
+
+    python -m benchmarks.pipeline [--config default] [--set KEY=VALUE ...] [--device cpu]
+
+The clip (generated on each run, bit-identical every time): 30 frames of 640x480, a ball flying
+through frames 0-13 and gone after, then a box through frames 16-29, over one photo: two tracks.
+It is written as H.264 and processed by ``sfb-video process``'s own code with the difference
+masks, in a fresh child process, which reports its wall time, the seconds of each stage
+(:mod:`sfb_video.timing`: each stage's own time, those nested in it taken out) and its peak
+resident memory (the whole process: Python, torch, numba, rerun, the encoder).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from benchmarks.memory import peak_mb
+from sfb_video import timing
+from sfb_video.config import load_config
+from sfb_video.synth import ClipSpec, generate_clip
+from sfb_video.video import VideoWriter
+from stages.process import ProcessOptions, process_clip
+
+FRAMES = 30
+STAGES = ("read", "background", "detect", "fit", "joint", "export", "recording")
+_COMMON = {"width": 640, "height": 480, "num_frames": FRAMES, "exposure_fraction": 0.8, "speed_range": (1.2, 1.5)}
+
+
+def clip_specs() -> tuple[ClipSpec, ClipSpec]:
+    """The ball (frames 0-13) and the box (16-29). One seed: the same photo and the same noise
+    in both, so each frame is taken whole from the clip whose object it shows."""
+    ball = ClipSpec(shape="ball", absent_frames=tuple(range(14, FRAMES)), size_px_range=(20.0, 24.0), **_COMMON)
+    box = ClipSpec(shape="box", absent_frames=tuple(range(16)), size_px_range=(22.0, 26.0), **_COMMON)
+    return ball, box
+
+
+def write_clip(path: Path) -> None:
+    """The benchmark's clip as H.264 at 30 fps."""
+    ball, box = (generate_clip(spec) for spec in clip_specs())
+    with VideoWriter(path, 30.0, 640, 480) as video:
+        for k in range(FRAMES):
+            frame = box.frames[k] if k in box.spec.present_frames else ball.frames[k]
+            video.write(np.ascontiguousarray(frame))
+
+
+def measure(video: Path, preset: str, overrides: list[str], device: str) -> dict:
+    """Process ``video`` in this process: wall time, stage seconds, peak memory, tracks found."""
+    config = load_config(preset, overrides)
+    timing.reset()
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        options = ProcessOptions(video=video, out=Path(tmp) / "run", masks="diff")
+        summary = process_clip(options, config, torch.device(device), quiet=True)
+    seconds = time.perf_counter() - start
+    tracks = {f["track"] for f in summary["frames"] if f.get("track") is not None}
+    return {
+        "seconds": seconds,
+        "stages": timing.stage_seconds(),
+        "peak_mb": peak_mb(),
+        "fitted": summary["frames_fitted"],
+        "tracks": len(tracks),
+        "windows": len(summary["joint"]["windows"]),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", default="default")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.device == "cuda" and not torch.cuda.is_available():
+        parser.error("--device cuda: no CUDA GPU is available to torch here")
+    if args.child:
+        print(json.dumps(measure(Path(args.child), args.config, args.set, args.device)))
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        video = Path(tmp) / "two_tracks.mp4"
+        write_clip(video)
+        command = [sys.executable, "-m", "benchmarks.pipeline", "--child", str(video), "--config", args.config]
+        command += ["--device", args.device, *(a for s in args.set for a in ("--set", s))]
+        done = subprocess.run(command, check=True, capture_output=True, text=True)
+    row = json.loads(done.stdout.splitlines()[-1])
+    total, stages = row["seconds"], row["stages"]
+    print(f"{args.config} preset {' '.join(args.set)} on {args.device}; {FRAMES} frames of 640x480, a ball then a box")
+    print(
+        f"fitted {row['fitted']} frames in {row['tracks']} tracks, {row['windows']} joint windows; "
+        f"peak memory {row['peak_mb']:.0f} MB\n"
+    )
+    print("| stage | seconds | share | s / frame |")
+    print("|---|---:|---:|---:|")
+    other = total - sum(stages.values())
+    for name, seconds in [*((s, stages.get(s, 0.0)) for s in STAGES), ("other (probe, run folder, saving)", other)]:
+        print(f"| {name} | {seconds:.1f} | {seconds / total:.0%} | {seconds / FRAMES:.2f} |")
+    print(f"| **all** | {total:.1f} | 100% | {total / FRAMES:.2f} |")
+    print(f"\n{FRAMES / total:.2f} frames per second overall")
+
+
+if __name__ == "__main__":
+    main()
