@@ -4,11 +4,12 @@
 
 The scene: a 320x240 crop, T = 8 poses over one exposure, a prototype filling about a third of
 the crop, a 100x100 texture. Each row gives median milliseconds per call for the forward pass
-and forward + backward, and the split of one forward + backward between rasterisation (hard
-visibility and band search, no gradient), the differentiable part of the rasteriser and
-shading, and the backward pass. On the CPU each case runs twice, in one run: with the
-rasteriser's searches as tensor operations (as before numba) and compiled
-(``sfb_video.render.kernels``). Peak memory is the process's peak resident set size.
+and forward + backward, and the split of one forward + backward between the searches (hard
+visibility and the band, no gradient), the differentiable part (barycentrics, texture,
+silhouette) and the backward pass. On the CPU each case runs twice, in one run: all in tensor
+operations (as before numba), and compiled (the searches in ``sfb_video.render.kernels``, the
+differentiable part in ``sfb_video.render.fused``, what runs by default). Peak memory is the
+process's peak resident set size.
 
 A second table times one whole fit step (render, composite, every loss term, backward, Adam)
 of the default preset on a generated 320x240 frame's crop as the pipeline makes it (a ball
@@ -30,14 +31,15 @@ import torch
 
 from sfb_video.config import RenderConfig, load_config
 from sfb_video.evaluation.synthetic import synthetic_crop
-from sfb_video.fitter import Optimisation
+from sfb_video.fitter import Optimisation, deterministic
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.pose import pose_vertices
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.geometry.rotation import exposure_rotations
 from sfb_video.model.motion import MotionParams, streak_from_mask
 from sfb_video.model.shape import ShapeParams
-from sfb_video.render import MeshRenderer, kernels, rasterize
+from sfb_video.render import MeshRenderer, fused, kernels
+from sfb_video.render.rasterizer import find_pixels, interpolate, pixel_unit, project_checked
 from sfb_video.render.shader import shade
 from sfb_video.synth import ClipSpec, generate_clip
 
@@ -60,14 +62,15 @@ def _peak_rss_mb() -> float:
 
 
 @contextmanager
-def searches(compiled: bool) -> Iterator[None]:
-    """Run the rasteriser's searches compiled (where numba serves the tensors) or as tensor ops."""
-    available = kernels.available
-    kernels.available = available if compiled else (lambda points: False)
+def compiled_passes(compiled: bool) -> Iterator[None]:
+    """Render with the compiled passes (where numba serves the tensors) or in tensor operations."""
+    available = kernels.available, fused.available
+    if not compiled:
+        kernels.available, fused.available = (lambda points: False), (lambda uv, texture: False)
     try:
         yield
     finally:
-        kernels.available = available
+        kernels.available, fused.available = available
 
 
 def bench_case(prototype: str, time_steps: int, repeats: int, device: torch.device) -> dict[str, float | str]:
@@ -105,18 +108,23 @@ def bench_case(prototype: str, time_steps: int, repeats: int, device: torch.devi
 
     def split() -> tuple[float, float, float]:
         start = time.perf_counter()
-        v = posed()
-        fragments = rasterize(v, topo, camera, settings)
+        uv, depth, topology = project_checked(posed(), topo, camera, settings)
+        lists = find_pixels(uv.detach(), depth.detach(), topology, camera, settings)
         mid = time.perf_counter()
-        out = shade(fragments, topo, texture, settings.sigma_inv)
-        loss = out.rgb.mean() + out.alpha.mean()
+        if fused.available(uv, texture):
+            unit = pixel_unit(camera)
+            rgb, alpha = fused.shade_lists(uv, depth, lists, topology, texture, settings.sigma_inv, unit)
+        else:
+            out = shade(interpolate(uv, depth, lists, topology, camera), topology, texture, settings.sigma_inv)
+            rgb, alpha = out.rgb, out.alpha
+        loss = rgb.mean() + alpha.mean()
         end_fwd = time.perf_counter()
         loss.backward()
         end = time.perf_counter()
         return mid - start, end_fwd - mid, end - end_fwd
 
     parts = [split() for _ in range(repeats)]
-    raster, shading, backward = (1000 * statistics.median(p[i] for p in parts) for i in range(3))
+    search, shading, backward = (1000 * statistics.median(p[i] for p in parts) for i in range(3))
     return {
         "prototype": prototype,
         "faces": topo.num_faces,
@@ -124,7 +132,7 @@ def bench_case(prototype: str, time_steps: int, repeats: int, device: torch.devi
         "coverage": coverage,
         "fwd": fwd,
         "fwd+bwd": fwd_bwd,
-        "rasterise": raster,
+        "search": search,
         "shade": shading,
         "backward": backward,
     }
@@ -148,7 +156,9 @@ def bench_fit_step(repeats: int, device: torch.device) -> dict[str, float | str]
     motion = motion.to(device)
     motion.start_at_streak(streak_from_mask(crop.object_mask))
     step = Optimisation(crop, shape, motion, 10 * repeats + 10, False, None, fit, config.render)
-    ms = _median_ms(lambda: step.run(1, None), repeats, device)
+    with deterministic(device):  # as fit_frame runs it
+        step.run(3, None)  # warm-up
+        ms = _median_ms(lambda: step.run(1, None), repeats, device)
     height, width = crop.image.shape[1:]
     return {"crop": f"{width}x{height}", "T": config.render.time_steps, "texture": fit.texture_size, "step": ms}
 
@@ -165,25 +175,25 @@ def main() -> None:
     rows = []
     for name, t in cases:
         for mode in modes:
-            with searches(mode == "compiled"):
-                rows.append(bench_case(name, t, args.repeats, device) | {"searches": mode})
+            with compiled_passes(mode == "compiled"):
+                rows.append(bench_case(name, t, args.repeats, device) | {"passes": mode})
     print(
         f"device {device}, torch {torch.__version__}, {torch.get_num_threads()} threads, crop 320x240, texture 100x100"
     )
-    print(f"median of {args.repeats} calls, milliseconds; rasterise/shade/backward split one forward+backward\n")
-    header = "| prototype | faces | T | coverage | searches | fwd | fwd+bwd | rasterise | shade | backward |"
+    print(f"median of {args.repeats} calls, milliseconds; search/shade/backward split one forward+backward\n")
+    header = "| prototype | faces | T | coverage | passes | fwd | fwd+bwd | search | shade | backward |"
     print(header)
     print("|---|---:|---:|---:|---|---:|---:|---:|---:|---:|")
     for r in rows:
         print(
-            f"| {r['prototype']} | {r['faces']} | {r['T']} | {r['coverage']:.2f} | {r['searches']} | {r['fwd']:.1f} | "
-            f"{r['fwd+bwd']:.1f} | {r['rasterise']:.1f} | {r['shade']:.1f} | {r['backward']:.1f} |"
+            f"| {r['prototype']} | {r['faces']} | {r['T']} | {r['coverage']:.2f} | {r['passes']} | {r['fwd']:.1f} | "
+            f"{r['fwd+bwd']:.1f} | {r['search']:.1f} | {r['shade']:.1f} | {r['backward']:.1f} |"
         )
     print("\none fit step of the default preset (cold start, sphere), median ms\n")
-    print("| crop | T | texture | searches | step |")
+    print("| crop | T | texture | passes | step |")
     print("|---|---:|---:|---|---:|")
     for mode in modes:
-        with searches(mode == "compiled"):
+        with compiled_passes(mode == "compiled"):
             r = bench_fit_step(args.repeats, device)
         print(f"| {r['crop']} | {r['T']} | {r['texture']} | {mode} | {r['step']:.1f} |")
     peak = _peak_rss_mb()

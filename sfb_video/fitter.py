@@ -22,7 +22,7 @@ from sfb_video.crop import Crop
 from sfb_video.geometry.pose import pose_vertices
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.model import losses
-from sfb_video.model.formation import composite, exposure_times
+from sfb_video.model.formation import exposure_times
 from sfb_video.model.motion import Motion, MotionParams, Streak, streak_from_mask
 from sfb_video.model.scene import ObjectState
 from sfb_video.model.shape import ShapeParams
@@ -81,8 +81,8 @@ def _joint_loss(
     """The weighted loss at ``progress``, the fraction of the fit's iterations done (L_D fades)."""
     rotations, positions = motion(taus)
     vertices = shape.vertices()
-    out = renderer(pose_vertices(vertices, rotations, positions), shape.topology, shape.texture())
-    rendered = composite(out.rgb, out.alpha, crop.background)
+    posed = pose_vertices(vertices, rotations, positions)
+    rendered, alpha = renderer.blurred(posed, shape.topology, shape.texture(), crop.background)
     terms = {
         "image": losses.image_loss(crop.image, rendered, crop.object_mask),
         "texture": losses.texture_tv(shape.texture()),
@@ -90,10 +90,10 @@ def _joint_loss(
     }
     weights = {"image": config.w_image, "texture": config.w_texture, "laplacian": config.w_laplacian}
     if masks is not None:
-        terms["silhouette"] = losses.silhouette_loss(masks, out.alpha)
+        terms["silhouette"] = losses.silhouette_loss(masks, alpha)
         weights["silhouette"] = config.w_silhouette
     else:
-        terms["difference"] = losses.difference_loss(crop.object_mask, out.alpha)
+        terms["difference"] = losses.difference_loss(crop.object_mask, alpha)
         weights["difference"] = config.w_difference * max(0.0, 1 - progress / config.difference_fade)
     total = sum(weights[k] * v for k, v in terms.items() if weights[k] != 0)
     record = {k: float(v.detach()) for k, v in terms.items()}
@@ -126,7 +126,8 @@ class Optimisation:
             {"params": [p for p in trained if all(p is not r for r in rotation)]},
             {"params": [p for p in trained if any(p is r for r in rotation)], "lr": config.lr_rotation},
         ]
-        self.optimiser = torch.optim.Adam(groups, lr=config.lr)
+        # fused: one kernel per step instead of a dozen small operations per parameter.
+        self.optimiser = torch.optim.Adam(groups, lr=config.lr, fused=True)
         self.best: tuple[dict, dict] | None = None  # state dicts of shape and motion
         self.best_record: dict[str, float] = {"image": float("inf")}
         self.best_render: torch.Tensor | None = None

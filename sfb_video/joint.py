@@ -36,7 +36,7 @@ from sfb_video.geometry.pose import pose_vertices
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.geometry.rotation import axis_angle_to_matrix
 from sfb_video.model import losses
-from sfb_video.model.formation import composite, exposure_times
+from sfb_video.model.formation import exposure_times
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.model.shape import ShapeParams
@@ -253,16 +253,16 @@ def _frame_loss(
     config: FitConfig,
     progress: float,
 ) -> tuple[torch.Tensor, dict[str, float]]:
-    out = renderer(pose_vertices(vertices, rotations, positions), shape.topology, shape.texture())
     crop = frame.crop
-    rendered = composite(out.rgb, out.alpha, crop.background)
+    posed = pose_vertices(vertices, rotations, positions)
+    rendered, alpha = renderer.blurred(posed, shape.topology, shape.texture(), crop.background)
     terms = {"image": losses.image_loss(crop.image, rendered, crop.object_mask)}
     weights = {"image": config.w_image}
     if frame.masks is not None:
-        terms["silhouette"] = losses.silhouette_loss(frame.masks, out.alpha)
+        terms["silhouette"] = losses.silhouette_loss(frame.masks, alpha)
         weights["silhouette"] = config.w_silhouette
     else:
-        terms["difference"] = losses.difference_loss(crop.object_mask, out.alpha)
+        terms["difference"] = losses.difference_loss(crop.object_mask, alpha)
         weights["difference"] = config.w_difference * max(0.0, 1 - progress / config.difference_fade)
     total = sum(weights[k] * v for k, v in terms.items() if weights[k] != 0)
     return total, {k: float(v.detach()) for k, v in terms.items()}
@@ -293,7 +293,7 @@ class _WindowFit:
             {"params": [p for p in rotation if p.requires_grad], "lr": fit_config.lr_rotation},
             {"params": [params.exposure_raw] if params.exposure_raw.requires_grad else [], "lr": config.lr_exposure},
         ]
-        self.optimiser = torch.optim.Adam([g for g in groups if g["params"]], lr=fit_config.lr)
+        self.optimiser = torch.optim.Adam([g for g in groups if g["params"]], lr=fit_config.lr, fused=True)
         self.step = 0
         self.curve: list[dict[str, float]] = []
         self.best: tuple[float, dict, dict, dict[int, dict[str, float]], float] | None = None

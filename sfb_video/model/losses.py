@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import torch
 
+from sfb_video.render.fused import swept
+
 
 def image_loss(image: torch.Tensor, rendered: torch.Tensor, roi: torch.Tensor | None = None) -> torch.Tensor:
     """L_I: absolute error between the input (3, H, W) and the reconstruction (3, H, W).
@@ -34,8 +36,7 @@ def difference_loss(mask: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
     silhouettes over the exposure; its differentiable form is 1 - prod_t (1 - A_t). (The soft
     mean itself would reward a static opaque blob over a streak, whose mean coverage is low.)
     """
-    swept = 1 - (1 - alpha[:, 0]).prod(0)
-    return 1 - soft_iou(mask, swept)
+    return 1 - soft_iou(mask, swept(alpha[:, 0]))
 
 
 def silhouette_loss(masks: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:

@@ -12,6 +12,43 @@ import torch
 
 
 @dataclass(frozen=True)
+class PixelLists:
+    """Which pixels a render shows and what they show, found without gradient.
+
+    Attributes:
+        size: (T, H, W) of the renders.
+        pix_in: (P,) flat index into T * H * W of the pixels inside the silhouette.
+        candidates: (K, 2) (render, face) of every face that was rasterised.
+        cand_in: (P,) the covering (nearest) face of each inside pixel, into ``candidates``.
+        pix_out: (Q,) flat index of the band pixels just outside the silhouette.
+        t_out: (Q,) their render; edge_out: (Q,) their nearest contour edge; side_out: (Q,)
+            which of the edge's two faces (0 or 1) faces the camera.
+        zbuf: (T, H, W) depth of the covering surface, +inf where nothing covers.
+    """
+
+    size: tuple[int, int, int]
+    pix_in: torch.Tensor
+    candidates: torch.Tensor
+    cand_in: torch.Tensor
+    pix_out: torch.Tensor
+    t_out: torch.Tensor
+    edge_out: torch.Tensor
+    side_out: torch.Tensor
+    zbuf: torch.Tensor
+
+    @property
+    def face_in(self) -> torch.Tensor:
+        """(P,) the covering face of each inside pixel."""
+        return self.candidates[self.cand_in, 1]
+
+    @property
+    def face_idx(self) -> torch.Tensor:
+        """(T, H, W) covering face per pixel, -1 where the pixel centre is not covered."""
+        out = torch.full((self.size[0] * self.size[1] * self.size[2],), -1, dtype=torch.long, device=self.zbuf.device)
+        return out.index_copy(0, self.pix_in, self.face_in).reshape(self.size)
+
+
+@dataclass(frozen=True)
 class Fragments:
     """Per-pixel rasterisation result for T renders of one mesh.
 

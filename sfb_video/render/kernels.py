@@ -36,151 +36,196 @@ def available(points: torch.Tensor) -> bool:
 
 
 def _nearest_faces(
-    tri: np.ndarray, inv_z: np.ndarray, t_idx: np.ndarray, height: int, width: int, num_t: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per pixel, the candidate face with the largest 1/z among those covering its centre.
+    uv: np.ndarray, depth: np.ndarray, faces: np.ndarray, closed: bool, min_area: float, height: int, width: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel, the face with the largest 1/z among those covering its centre.
 
     Args:
-        tri: (K, 3, 2) float32 screen corners; inv_z: (K, 3) their 1/z; t_idx: (K,) render.
+        uv: (T, V, 2) float32 pixels; depth: (T, V) float32; faces: (F, 3).
+        closed: whether back faces can be skipped (they never win on a closed surface).
+        min_area: faces whose projected doubled area is not above this are skipped.
 
     Returns:
         pix: (P,) int64 flat index into T * H * W of covered pixels, ascending.
         cand: (P,) int64 the winning candidate; inv_z: (P,) float32 its 1/z there.
+        candidates: (K, 2) int64 (render, face) of every rasterised face, in (render, face)
+            order; front: (T, F) bool, which faces face the camera.
     """
+    num_t = uv.shape[0]
     best = np.full(num_t * height * width, -np.inf, dtype=np.float32)
     owner = np.full(num_t * height * width, -1, dtype=np.int64)
-    for k in range(tri.shape[0]):
-        x0, y0 = tri[k, 0, 0], tri[k, 0, 1]
-        d1x, d1y = tri[k, 1, 0] - x0, tri[k, 1, 1] - y0
-        d2x, d2y = tri[k, 2, 0] - x0, tri[k, 2, 1] - y0
-        w1, w2 = inv_z[k, 1] - inv_z[k, 0], inv_z[k, 2] - inv_z[k, 0]
-        area = d1x * d2y - d1y * d2x
-        a = (w1 * d2y - w2 * d1y) / area
-        b = (w2 * d1x - w1 * d2x) / area
-        c = inv_z[k, 0] - a * x0 - b * y0
-        y_min = min(tri[k, 0, 1], tri[k, 1, 1], tri[k, 2, 1])
-        y_max = max(tri[k, 0, 1], tri[k, 1, 1], tri[k, 2, 1])
-        y_lo = max(math.ceil(y_min), 0)
-        y_hi = min(math.floor(y_max), height - 1)
-        base = t_idx[k] * height * width
-        for y in range(y_lo, y_hi + 1):
-            fy = np.float32(y)
-            left, right = np.float32(np.inf), np.float32(-np.inf)
-            for e in range(3):
-                px, py = tri[k, e, 0], tri[k, e, 1]
-                qx, qy = tri[k, (e + 1) % 3, 0], tri[k, (e + 1) % 3, 1]
-                dy = qy - py
-                if dy == 0:
-                    continue
-                s = (fy - py) / dy
-                if s < 0 or s > 1:
-                    continue
-                x = px + s * (qx - px)
-                left, right = min(left, x), max(right, x)
-            if left > right:
+    front = np.zeros((num_t, faces.shape[0]), dtype=np.bool_)
+    candidates = np.empty((num_t * faces.shape[0], 2), dtype=np.int64)
+    tri = np.empty((3, 2), dtype=np.float32)
+    inv_z = np.empty(3, dtype=np.float32)
+    min_area32 = np.float32(min_area)
+    k = 0
+    for t in range(num_t):
+        for f in range(faces.shape[0]):
+            for i in range(3):
+                tri[i, 0], tri[i, 1] = uv[t, faces[f, i], 0], uv[t, faces[f, i], 1]
+                inv_z[i] = np.float32(1.0) / depth[t, faces[f, i]]
+            d1x, d1y = tri[1, 0] - tri[0, 0], tri[1, 1] - tri[0, 1]
+            d2x, d2y = tri[2, 0] - tri[0, 0], tri[2, 1] - tri[0, 1]
+            area = d1x * d2y - d1y * d2x
+            front[t, f] = area < 0
+            if not (abs(area) > min_area32 and (area < 0 or not closed)):
                 continue
-            x_lo = max(math.ceil(left), 0)
-            x_hi = min(math.floor(right), width - 1)
-            row = base + y * width
-            for x in range(x_lo, x_hi + 1):
-                value = a * np.float32(x) + b * fy + c
-                if value >= best[row + x]:
-                    best[row + x] = value
-                    owner[row + x] = k
+            candidates[k, 0], candidates[k, 1] = t, f
+            _scan_face(tri, inv_z, t * height * width, k, height, width, best, owner)
+            k += 1
     pix = np.nonzero(owner >= 0)[0]
-    return pix, owner[pix], best[pix]
+    return pix, owner[pix], best[pix], candidates[:k], front
+
+
+def _scan_face(
+    tri: np.ndarray,
+    inv_z: np.ndarray,
+    base: int,
+    k: int,
+    height: int,
+    width: int,
+    best: np.ndarray,
+    owner: np.ndarray,
+) -> None:
+    """Z-test candidate ``k``, the (3, 2) screen triangle ``tri`` with corner 1/z ``inv_z``, at
+    the pixel centres in its scanline spans (render offset ``base``), keeping the nearest."""
+    x0, y0 = tri[0, 0], tri[0, 1]
+    d1x, d1y = tri[1, 0] - x0, tri[1, 1] - y0
+    d2x, d2y = tri[2, 0] - x0, tri[2, 1] - y0
+    w1, w2 = inv_z[1] - inv_z[0], inv_z[2] - inv_z[0]
+    area = d1x * d2y - d1y * d2x
+    a = (w1 * d2y - w2 * d1y) / area
+    b = (w2 * d1x - w1 * d2x) / area
+    c = inv_z[0] - a * x0 - b * y0
+    y_min = min(tri[0, 1], tri[1, 1], tri[2, 1])
+    y_max = max(tri[0, 1], tri[1, 1], tri[2, 1])
+    y_lo = max(math.ceil(y_min), 0)
+    y_hi = min(math.floor(y_max), height - 1)
+    for y in range(y_lo, y_hi + 1):
+        fy = np.float32(y)
+        left, right = np.float32(np.inf), np.float32(-np.inf)
+        for e in range(3):
+            px, py = tri[e, 0], tri[e, 1]
+            qx, qy = tri[(e + 1) % 3, 0], tri[(e + 1) % 3, 1]
+            dy = qy - py
+            if dy == 0:
+                continue
+            s = (fy - py) / dy
+            if s < 0 or s > 1:
+                continue
+            x = px + s * (qx - px)
+            left, right = min(left, x), max(right, x)
+        if left > right:
+            continue
+        x_lo = max(math.ceil(left), 0)
+        x_hi = min(math.floor(right), width - 1)
+        row = base + y * width
+        for x in range(x_lo, x_hi + 1):
+            value = a * np.float32(x) + b * fy + c
+            if value >= best[row + x]:
+                best[row + x] = value
+                owner[row + x] = k
 
 
 def _nearest_edges(
-    a: np.ndarray,
-    b: np.ndarray,
-    t_idx: np.ndarray,
+    uv: np.ndarray,
+    front: np.ndarray,
+    edges: np.ndarray,
+    edge_faces: np.ndarray,
     covered: np.ndarray,
     radius: float,
     height: int,
     width: int,
-    num_t: int,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per uncovered pixel within ``radius`` of a contour edge, the closest edge.
 
+    A contour edge lies between a front- and a back-facing face, or on an open mesh's boundary.
+
     Args:
-        a, b: (E, 2) float32 edge ends in pixels; t_idx: (E,) render; covered: (T * H * W,).
+        uv: (T, V, 2) float32 pixels; front: (T, F) bool; edges, edge_faces: (E, 2);
+        covered: (T * H * W,) bool, pixels inside the silhouette.
 
     Returns:
-        pix: (Q,) int64 flat pixel index, ascending; edge: (Q,) int64 the closest edge.
+        pix: (Q,) int64 flat pixel index, ascending; t_idx, edge: (Q,) int64 its render and
+        closest contour edge; side: (Q,) int64 which face of the edge (0 or 1) faces the camera.
     """
+    num_t = uv.shape[0]
     best = np.full(num_t * height * width, np.inf, dtype=np.float32)
     owner = np.full(num_t * height * width, -1, dtype=np.int64)
     r2 = np.float32(radius * radius)
-    for k in range(a.shape[0]):
-        ax, ay, bx, by = a[k, 0], a[k, 1], b[k, 0], b[k, 1]
-        abx, aby = bx - ax, by - ay
-        length2 = max(abx * abx + aby * aby, np.float32(1e-20))
-        x_lo = max(math.ceil(min(ax, bx) - radius), 0)
-        x_hi = min(math.floor(max(ax, bx) + radius), width - 1)
-        y_lo = max(math.ceil(min(ay, by) - radius), 0)
-        y_hi = min(math.floor(max(ay, by) + radius), height - 1)
-        base = t_idx[k] * height * width
-        for y in range(y_lo, y_hi + 1):
-            py = np.float32(y)
-            for x in range(x_lo, x_hi + 1):
-                key = base + y * width + x
-                if covered[key]:
-                    continue
-                px = np.float32(x)
-                lam = min(max(((px - ax) * abx + (py - ay) * aby) / length2, np.float32(0)), np.float32(1))
-                dx, dy = px - (ax + lam * abx), py - (ay + lam * aby)
-                d2 = dx * dx + dy * dy
-                if d2 <= r2 and d2 <= best[key]:
-                    best[key] = d2
-                    owner[key] = k
+    for t in range(num_t):
+        for e in range(edges.shape[0]):
+            has_two = edge_faces[e, 1] >= 0
+            front0 = front[t, edge_faces[e, 0]]
+            if has_two and front0 == front[t, edge_faces[e, 1]]:
+                continue
+            ax, ay = uv[t, edges[e, 0], 0], uv[t, edges[e, 0], 1]
+            bx, by = uv[t, edges[e, 1], 0], uv[t, edges[e, 1], 1]
+            abx, aby = bx - ax, by - ay
+            length2 = max(abx * abx + aby * aby, np.float32(1e-20))
+            x_lo = max(math.ceil(min(ax, bx) - radius), 0)
+            x_hi = min(math.floor(max(ax, bx) + radius), width - 1)
+            y_lo = max(math.ceil(min(ay, by) - radius), 0)
+            y_hi = min(math.floor(max(ay, by) + radius), height - 1)
+            base = t * height * width
+            for y in range(y_lo, y_hi + 1):
+                py = np.float32(y)
+                for x in range(x_lo, x_hi + 1):
+                    key = base + y * width + x
+                    if covered[key]:
+                        continue
+                    px = np.float32(x)
+                    lam = min(max(((px - ax) * abx + (py - ay) * aby) / length2, np.float32(0)), np.float32(1))
+                    dx, dy = px - (ax + lam * abx), py - (ay + lam * aby)
+                    d2 = dx * dx + dy * dy
+                    if d2 <= r2 and d2 <= best[key]:
+                        best[key] = d2
+                        owner[key] = t * edges.shape[0] + e
     pix = np.nonzero(owner >= 0)[0]
-    return pix, owner[pix]
+    t_idx, edge = owner[pix] // edges.shape[0], owner[pix] % edges.shape[0]
+    side = np.zeros(pix.shape[0], dtype=np.int64)
+    for n in range(pix.shape[0]):
+        if edge_faces[edge[n], 1] >= 0 and not front[t_idx[n], edge_faces[edge[n], 0]]:
+            side[n] = 1
+    return pix, t_idx, edge, side
 
 
-def _compile(function: Callable[..., Any]) -> Callable[..., Any]:
+def compile_kernel(function: Callable[..., Any], inline: bool = False) -> Callable[..., Any]:
+    """``function`` compiled by numba (cached on disk where a cache folder is writable);
+    ``inline``: compiled into each compiled caller instead (small helpers)."""
+    options = {"nogil": True, "error_model": "numpy", "inline": "always" if inline else "never"}
     # The on-disk cache saves the ~1 s compile per process; where no cache folder is writable
     # (a read-only install and home), numba refuses cache=True and it compiles every time.
     try:
-        return njit(cache=True, nogil=True, error_model="numpy")(function)
+        return njit(cache=True, **options)(function)
     except RuntimeError:
-        return njit(nogil=True, error_model="numpy")(function)
+        return njit(**options)(function)
 
 
 if njit is not None:
-    _nearest_faces = _compile(_nearest_faces)
-    _nearest_edges = _compile(_nearest_edges)
+    _scan_face = compile_kernel(_scan_face, inline=True)
+    _nearest_faces = compile_kernel(_nearest_faces)
+    _nearest_edges = compile_kernel(_nearest_edges)
 
 
 def nearest_faces(
-    tri: torch.Tensor, inv_z: torch.Tensor, t_idx: torch.Tensor, size: tuple[int, int, int]
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """:func:`_nearest_faces` on (K, 3, 2) corners, (K, 3) 1/z and (K,) renders of (T, H, W)."""
-    num_t, height, width = size
-    pix, cand, best = _nearest_faces(
-        tri.contiguous().numpy(), inv_z.contiguous().numpy(), t_idx.numpy(), height, width, num_t
-    )
-    return torch.from_numpy(pix), torch.from_numpy(cand), torch.from_numpy(best)
+    uv: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, closed: bool, min_area: float, size: tuple[int, int]
+) -> tuple[torch.Tensor, ...]:
+    """:func:`_nearest_faces` on (T, V, 2) pixels, (T, V) depths and (F, 3) faces; ``size`` (H, W)."""
+    arrays = (a.contiguous().numpy() for a in (uv, depth, faces))
+    return tuple(torch.from_numpy(a) for a in _nearest_faces(*arrays, closed, float(min_area), *size))
 
 
 def nearest_edges(
-    a: torch.Tensor,
-    b: torch.Tensor,
-    t_idx: torch.Tensor,
+    uv: torch.Tensor,
+    front: torch.Tensor,
+    edges: torch.Tensor,
+    edge_faces: torch.Tensor,
     covered: torch.Tensor,
     radius: float,
-    size: tuple[int, int, int],
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`_nearest_edges` on (E, 2) edge ends and (E,) renders of (T, H, W)."""
-    num_t, height, width = size
-    pix, edge = _nearest_edges(
-        a.contiguous().numpy(),
-        b.contiguous().numpy(),
-        t_idx.numpy(),
-        covered.numpy(),
-        float(radius),
-        height,
-        width,
-        num_t,
-    )
-    return torch.from_numpy(pix), torch.from_numpy(edge)
+    size: tuple[int, int],
+) -> tuple[torch.Tensor, ...]:
+    """:func:`_nearest_edges` on (T, V, 2) pixels, (T, F) front faces and the mesh's edges."""
+    arrays = (a.contiguous().numpy() for a in (uv, front, edges, edge_faces, covered))
+    return tuple(torch.from_numpy(a) for a in _nearest_edges(*arrays, float(radius), *size))

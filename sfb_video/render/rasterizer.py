@@ -25,7 +25,7 @@ from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology, check_vertices
 from sfb_video.render import kernels
 from sfb_video.render.barycentric import MIN_AREA_PX2, cross2, segment_closest
-from sfb_video.render.fragments import Fragments
+from sfb_video.render.fragments import Fragments, PixelLists
 
 
 def band_radius_px(camera: PinholeCamera, settings: RenderConfig) -> float:
@@ -125,17 +125,20 @@ def _visible_faces(
     """
     num_t, height, width = uv.shape[0], camera.height, camera.width
     faces = topology.faces
-    tri = uv[:, faces]  # (T, F, 3, 2)
-    area = cross2(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
-    front = area < 0
-    # A ray enters a closed surface through a front face first, so back faces never win there.
-    keep = (area.abs() > MIN_AREA_PX2) & (front | (not topology.is_closed()))
-    t_idx, f_idx = torch.nonzero(keep, as_tuple=True)
-    tri = tri[t_idx, f_idx]
-    corner_inv_z = 1.0 / depth[t_idx[:, None], faces[f_idx]]
     if kernels.available(uv):
-        pix, cand, inv_z = kernels.nearest_faces(tri, corner_inv_z, t_idx, (num_t, height, width))
+        size = (height, width)
+        pix, cand, inv_z, candidates, front = kernels.nearest_faces(
+            uv, depth, faces, topology.is_closed(), MIN_AREA_PX2, size
+        )
     else:
+        tri = uv[:, faces]  # (T, F, 3, 2)
+        area = cross2(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+        front = area < 0
+        # A ray enters a closed surface through a front face first, so back faces never win there.
+        keep = (area.abs() > MIN_AREA_PX2) & (front | (not topology.is_closed()))
+        t_idx, f_idx = torch.nonzero(keep, as_tuple=True)
+        tri = tri[t_idx, f_idx]
+        corner_inv_z = 1.0 / depth[t_idx[:, None], faces[f_idx]]
         planes = _inverse_depth_planes(tri, corner_inv_z)
         owner, xy = _scanline_spans(tri, width, height)
         pl = planes[owner]
@@ -144,9 +147,9 @@ def _visible_faces(
         # The nearest surface has the largest 1/z.
         win = _argmin_per_key(key, -inv_z, num_t * height * width)
         pix, cand, inv_z = key[win], owner[win], inv_z[win]
+        candidates = torch.stack((t_idx, f_idx), -1)
     zbuf = torch.full((num_t * height * width,), math.inf, device=uv.device, dtype=uv.dtype)
     zbuf[pix] = 1.0 / inv_z
-    candidates = torch.stack((t_idx, f_idx), -1)
     return pix, cand, candidates, zbuf.reshape(num_t, height, width), front
 
 
@@ -196,16 +199,14 @@ def _contour_band(
     """
     num_t, height, width = uv.shape[0], camera.height, camera.width
     edges, edge_faces = topology.edges, topology.edge_faces
+    if kernels.available(uv):
+        return kernels.nearest_edges(uv, front, edges, edge_faces, covered, radius, (height, width))
     has_two = edge_faces[:, 1] >= 0
     front0 = front[:, edge_faces[:, 0]]
     front1 = front[:, edge_faces[:, 1].clamp_min(0)]
     contour = ~has_two | (front0 != front1)  # (T, E)
     t_idx, e_idx = torch.nonzero(contour, as_tuple=True)
     a, b = uv[t_idx, edges[e_idx, 0]], uv[t_idx, edges[e_idx, 1]]
-    if kernels.available(uv):
-        pix, owner = kernels.nearest_edges(a, b, t_idx, covered, radius, (num_t, height, width))
-        side = (~(front0[t_idx[owner], e_idx[owner]]) & has_two[e_idx[owner]]).long()
-        return pix, t_idx[owner], e_idx[owner], side
     lo = (torch.minimum(a, b) - radius).ceil().long()
     hi = (torch.maximum(a, b) + radius).floor().long()
     lo = torch.maximum(lo, torch.zeros_like(lo))
@@ -221,6 +222,80 @@ def _contour_band(
     owner = owner[win]
     side = (~(front0[t_idx[owner], e_idx[owner]]) & has_two[e_idx[owner]]).long()
     return key[win], t_idx[owner], e_idx[owner], side
+
+
+def project_checked(
+    vertices: torch.Tensor, topology: MeshTopology, camera: PinholeCamera, settings: RenderConfig
+) -> tuple[torch.Tensor, torch.Tensor, MeshTopology]:
+    """Check (T, V, 3) camera-space vertices and project them.
+
+    Returns:
+        uv: (T, V, 2) pixels; depth: (T, V); the topology on the vertices' device.
+
+    Raises:
+        MeshError, PoseError: non-finite vertices, faces out of range, vertices behind the camera.
+    """
+    check_vertices(vertices, topology)
+    if vertices.dim() != 3:
+        raise ValueError(f"vertices must have shape (T, V, 3), got {tuple(vertices.shape)}")
+    uv, depth = camera.project(vertices)
+    check_in_front(depth.detach(), settings.near)
+    return uv, depth, topology.to(vertices.device)
+
+
+@torch.no_grad()
+def find_pixels(
+    uv: torch.Tensor, depth: torch.Tensor, topology: MeshTopology, camera: PinholeCamera, settings: RenderConfig
+) -> PixelLists:
+    """The pixels inside the silhouette with their nearest face, and the band pixels around it
+    with their nearest contour edge, from (T, V, 2) pixels and (T, V) depths (no gradient)."""
+    num_t, height, width = uv.shape[0], camera.height, camera.width
+    pix_in, cand_in, candidates, zbuf, front = _visible_faces(uv, depth, topology, camera)
+    covered = torch.zeros(num_t * height * width, dtype=torch.bool, device=uv.device)
+    covered[pix_in] = True
+    radius = band_radius_px(camera, settings)
+    pix_out, t_out, edge_out, side_out = _contour_band(uv, front, topology, covered, camera, radius)
+    return PixelLists((num_t, height, width), pix_in, candidates, cand_in, pix_out, t_out, edge_out, side_out, zbuf)
+
+
+def interpolate(
+    uv: torch.Tensor, depth: torch.Tensor, lists: PixelLists, topology: MeshTopology, camera: PinholeCamera
+) -> Fragments:
+    """Barycentrics of the listed pixels and the band's distances, with gradient w.r.t. the
+    (T, V, 2) pixels and (T, V) depths of the vertices."""
+    height, width = camera.height, camera.width
+    faces = topology.faces
+    # Inside: barycentrics of the pixel centre in its covering face.
+    pix_in = lists.pix_in
+    planes, origin = _weight_planes(uv, depth, faces, lists.candidates)
+    plane, origin = planes[lists.cand_in], origin[lists.cand_in]  # (P, 3, 3), (P, 2)
+    du = (pix_in % width).to(uv.dtype)[:, None] - origin[:, :1]
+    dv = ((pix_in // width) % height).to(uv.dtype)[:, None] - origin[:, 1:]
+    bary_in = plane[..., 0] * du + plane[..., 1] * dv + plane[..., 2]
+    bary_in = bary_in / bary_in.sum(-1, keepdim=True)
+
+    # Band: the closest point on the contour edge, expressed in the edge's front face.
+    pix_out, t_out, edge_out, side_out = lists.pix_out, lists.t_out, lists.edge_out, lists.side_out
+    ends = topology.edges[edge_out]  # (Q, 2)
+    a, b = uv[t_out, ends[:, 0]], uv[t_out, ends[:, 1]]
+    p_out = torch.stack((pix_out % width, (pix_out // width) % height), -1).to(uv.dtype)
+    lam, d2_px = segment_closest(p_out, a, b)
+    face_out = topology.edge_faces[edge_out, side_out]
+    slots = topology.edge_slots[edge_out, side_out]  # (Q, 2)
+    w_edge = torch.stack((1 - lam, lam), -1) / depth[t_out[:, None], ends]
+    w_edge = w_edge / w_edge.sum(-1, keepdim=True)
+    bary_out = torch.zeros(lam.shape[0], 3, dtype=uv.dtype, device=uv.device).scatter(1, slots, w_edge)
+
+    unit2 = pixel_unit(camera) ** 2
+    return Fragments(
+        size=lists.size,
+        pix=torch.cat((pix_in, pix_out)),
+        face=torch.cat((lists.face_in, face_out)),
+        bary=torch.cat((bary_in, bary_out)),
+        inside=torch.cat((torch.ones_like(pix_in, dtype=torch.bool), torch.zeros_like(pix_out, dtype=torch.bool))),
+        dist2=torch.cat((torch.zeros_like(bary_in[:, 0]), d2_px / unit2)),
+        zbuf=lists.zbuf,
+    )
 
 
 def rasterize(
@@ -240,49 +315,6 @@ def rasterize(
     Returns:
         :class:`Fragments` with gradient w.r.t. ``vertices`` in ``bary`` and ``dist2``.
     """
-    check_vertices(vertices, topology)
-    if vertices.dim() != 3:
-        raise ValueError(f"vertices must have shape (T, V, 3), got {tuple(vertices.shape)}")
-    uv, depth = camera.project(vertices)
-    check_in_front(depth.detach(), settings.near)
-    num_t, height, width = vertices.shape[0], camera.height, camera.width
-    topo = topology.to(vertices.device)
-    faces = topo.faces
-    with torch.no_grad():
-        pix_in, cand_in, candidates, zbuf, front = _visible_faces(uv.detach(), depth.detach(), topo, camera)
-        covered = torch.zeros(num_t * height * width, dtype=torch.bool, device=uv.device)
-        covered[pix_in] = True
-        pix_out, t_out, edge_out, side_out = _contour_band(
-            uv.detach(), front, topo, covered, camera, band_radius_px(camera, settings)
-        )
-
-    # Inside: barycentrics of the pixel centre in its covering face, now with gradient.
-    face_in = candidates[cand_in, 1]
-    planes, origin = _weight_planes(uv, depth, faces, candidates)
-    plane, origin = planes[cand_in], origin[cand_in]  # (P, 3, 3), (P, 2)
-    du = (pix_in % width).to(uv.dtype)[:, None] - origin[:, :1]
-    dv = ((pix_in // width) % height).to(uv.dtype)[:, None] - origin[:, 1:]
-    bary_in = plane[..., 0] * du + plane[..., 1] * dv + plane[..., 2]
-    bary_in = bary_in / bary_in.sum(-1, keepdim=True)
-
-    # Band: the closest point on the contour edge, expressed in the edge's front face.
-    ends = topo.edges[edge_out]  # (Q, 2)
-    a, b = uv[t_out, ends[:, 0]], uv[t_out, ends[:, 1]]
-    p_out = torch.stack((pix_out % width, (pix_out // width) % height), -1).to(uv.dtype)
-    lam, d2_px = segment_closest(p_out, a, b)
-    face_out = topo.edge_faces[edge_out, side_out]
-    slots = topo.edge_slots[edge_out, side_out]  # (Q, 2)
-    w_edge = torch.stack((1 - lam, lam), -1) / depth[t_out[:, None], ends]
-    w_edge = w_edge / w_edge.sum(-1, keepdim=True)
-    bary_out = torch.zeros(lam.shape[0], 3, dtype=uv.dtype, device=uv.device).scatter(1, slots, w_edge)
-
-    unit2 = pixel_unit(camera) ** 2
-    return Fragments(
-        size=(num_t, height, width),
-        pix=torch.cat((pix_in, pix_out)),
-        face=torch.cat((face_in, face_out)),
-        bary=torch.cat((bary_in, bary_out)),
-        inside=torch.cat((torch.ones_like(pix_in, dtype=torch.bool), torch.zeros_like(pix_out, dtype=torch.bool))),
-        dist2=torch.cat((torch.zeros_like(bary_in[:, 0]), d2_px / unit2)),
-        zbuf=zbuf,
-    )
+    uv, depth, topo = project_checked(vertices, topology, camera, settings)
+    lists = find_pixels(uv.detach(), depth.detach(), topo, camera, settings)
+    return interpolate(uv, depth, lists, topo, camera)

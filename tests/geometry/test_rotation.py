@@ -33,3 +33,25 @@ def test_exposure_rotations_interpolate_on_the_geodesic() -> None:
     assert torch.allclose(rs[2], rot.axis_angle_to_matrix(omega) @ rot0, atol=1e-6)
     angles = rot.rotation_angle_deg(rot0.expand(3, 3, 3), rs)
     assert torch.allclose(angles, torch.tensor([0.0, 45.0, 90.0]), atol=1e-2)
+
+
+def test_compact_conversions_match_kornia_in_values_and_gradients() -> None:
+    from kornia.geometry import conversions as kc
+
+    omega = torch.tensor([[0.3, -1.2, 0.5], [0.0, 0.0, 0.0], [1e-5, -2e-5, 0.0], [2.0, 1.0, -0.5]], dtype=torch.float64)
+    quat = torch.tensor([[0.9, 0.1, -0.3, 0.2], [1.0, 0.0, 0.0, 0.0], [-0.2, 0.5, 0.5, -0.6]], dtype=torch.float64)
+    for ours, theirs, x in (
+        (rot.axis_angle_to_matrix, kc.axis_angle_to_rotation_matrix, omega),
+        (rot.quaternion_to_matrix, lambda q: kc.quaternion_to_rotation_matrix(kc.normalize_quaternion(q)), quat),
+    ):
+        weights = torch.rand(x.shape[0], 3, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+        grads = []
+        for fn in (ours, theirs):
+            xx = x.clone().requires_grad_()
+            value = fn(xx)
+            (value * weights).sum().backward()
+            grads.append((value.detach(), xx.grad))
+        assert torch.allclose(grads[0][0], grads[1][0], atol=1e-12)
+        assert torch.allclose(grads[0][1], grads[1][1], atol=1e-8)
+        assert torch.isfinite(grads[0][1]).all()
+    assert torch.autograd.gradcheck(rot.axis_angle_to_matrix, (omega.clone().requires_grad_(),))
