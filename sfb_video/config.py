@@ -214,8 +214,9 @@ class JointConfig(_Checked):
     path_steps: int = bounded(300, ge=0)
     """Steps fitting the trajectory to the seeds' streak ends before the joint fit (no rendering)."""
     motion: str = one_of("auto", ("auto", "constant_velocity", "constant_acceleration", "bounce"))
-    """The trajectory's model; ``auto`` tries constant acceleration and, where the seeds leave
-    one smooth path, a bounce, and keeps the lower joint loss."""
+    """The trajectory's model; ``auto`` takes constant acceleration, or a bounce where one
+    smooth path misses a seed's streak end by more than ``bounce_residual`` and a path broken in
+    one gap between exposures brings every end within it (:func:`sfb_video.joint.choose_motion`)."""
     bounce_residual: float = bounded(0.15, gt=0)
     """``auto`` motion: a bounce is tried when one smooth path passes farther than this from a
     seed's streak end, in apparent object diameters."""

@@ -18,7 +18,13 @@ The forward pass per pixel, as in the tensor version:
   d2 = |p - a - lam (b - a)|^2, weights ((1 - lam) / z_a, lam / z_b) normalised into the edge's
   two corners of its front face, alpha = exp(-sigma_inv d2 / unit^2);
 - the texture sampled bilinearly as ``grid_sample`` does (align_corners False, border padding,
-  coordinates clamped to the texture, border texels without gradient).
+  coordinates clamped to the texture, border texels without gradient);
+- for the fitter, optionally composited straight into the blurred image (paper, eq. 4), so
+  that the T colour images are never made.
+
+The region the object sweeps over the exposure, L_D's 1 - prod_t (1 - A_t), is compiled here
+too (:func:`swept`): torch's product backward over the T silhouettes cost more than the rest
+of the loss.
 """
 
 from __future__ import annotations
