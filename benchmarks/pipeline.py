@@ -61,13 +61,16 @@ def measure(video: Path, preset: str, overrides: list[str], device: str) -> dict
         options = ProcessOptions(video=video, out=Path(tmp) / "run", masks="diff")
         summary = process_clip(options, config, torch.device(device), quiet=True)
     seconds = time.perf_counter() - start
-    tracks = {f["track"] for f in summary["frames"] if f.get("track") is not None}
+    tracks: dict[int, list[int]] = {}
+    for frame in summary["frames"]:
+        if frame.get("track") is not None:
+            tracks.setdefault(frame["track"], []).append(frame["index"])
     return {
         "seconds": seconds,
         "stages": timing.stage_seconds(),
         "peak_mb": peak_mb(),
         "fitted": summary["frames_fitted"],
-        "tracks": len(tracks),
+        "tracks": [f"{frames[0]}-{frames[-1]}" for frames in tracks.values()],
         "windows": len(summary["joint"]["windows"]),
     }
 
@@ -94,7 +97,8 @@ def main() -> None:
     total, stages = row["seconds"], row["stages"]
     print(f"{args.config} preset {' '.join(args.set)} on {args.device}; {FRAMES} frames of 640x480, a ball then a box")
     print(
-        f"fitted {row['fitted']} frames in {row['tracks']} tracks, {row['windows']} joint windows; "
+        f"fitted {row['fitted']} frames in {len(row['tracks'])} tracks (frames {', '.join(row['tracks'])}), "
+        f"{row['windows']} joint windows; "
         f"peak memory {row['peak_mb']:.0f} MB\n"
     )
     print("| stage | seconds | share | s / frame |")
