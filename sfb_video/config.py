@@ -228,6 +228,19 @@ class JointConfig(_Checked):
     learn_exposure: bool = True
     """Learn the exposure fraction (shared by the window) from ``video.exposure_fraction``;
     off keeps that value."""
+    spin_magnitudes: tuple[float, ...] = bounded((30.0, 60.0, 90.0), ge=0, le=180)
+    """A track's first window searches the spin (per frame interval, degrees) over these
+    magnitudes about ``spin_axes`` axes, and the seeds' spins and none, by the residual of the
+    best coarse texture (:mod:`sfb_video.spin`); empty: start from the best seed's spin."""
+    spin_axes: int = bounded(20, ge=1)
+    """Axes of the spin search's grid, spread evenly over the sphere."""
+    spin_refine: tuple[float, ...] = bounded((15.0, 7.5), gt=0)
+    """The pattern search's steps after the grid (degrees per frame interval), largest first."""
+    spin_texture: int = bounded(32, ge=2)
+    """Texels a side of the spin search's texture: a finer one explains the frames with a
+    wrong spin too."""
+    spin_smoothness: float = bounded(1e-3, ge=0)
+    """Weight of the squared texel differences in the spin search's texture solve."""
     lr_path: float = bounded(0.02, gt=0)
     """Adam's step size for the trajectory's anchors (in reference diameters and log size)."""
     lr_exposure: float = bounded(0.05, gt=0)
