@@ -13,8 +13,10 @@ The fit starts from single-frame fits of the same frames (the seeds): the trajec
 to their streak ends in the image, and the mesh and texture are those of the seed that explains
 its frame best, its rotation carried to the window's start. Two choices are made on the window,
 not on one frame: the motion model (a bounce where one smooth path leaves the seeds' streak ends
-far apart, :func:`choose_motion`), and the shape: fresh prototypes (a capsule for pens and keys)
-compete with the seeded mesh for the first part of the fit and the lowest joint L_I goes on.
+far apart, :func:`choose_motion`), and the start: fresh prototypes (a capsule for pens and
+keys) and, on a track's first window, the seed's prototype with the spin and texture that a
+search over spins finds (:mod:`sfb_video.spin`) compete with the seeded mesh for the first part
+of the fit, and the lowest joint L_I goes on.
 """
 
 from __future__ import annotations
@@ -92,8 +94,8 @@ class JointResult:
         curve: the joint loss terms at every step.
         seconds: wall time.
         bounce: the window time of the bounce model's break, else None.
-        trials: per candidate shape tried (``seed:<prototype>`` or a fresh prototype's name),
-            its mean L_I after the trial steps.
+        trials: per candidate tried (``seed:<prototype>``, ``spin:<prototype>`` for the
+            searched spin, or a fresh prototype's name), its mean L_I after the trial steps.
     """
 
     prototype: str
@@ -366,6 +368,8 @@ def fit_window(
             from what the seeds measure (:func:`measured_exposure`) or, without, from this.
         prototypes: fresh prototypes (grey, undeformed) that compete with the best seed's mesh
             for the first ``config.trial_fraction`` of the steps; the lowest mean L_I goes on.
+            Without ``shape_from``, the spin searched on the best seed's prototype
+            (``config.spin_magnitudes``) starts one more competitor.
         shape_from: the seed whose mesh, texture and rotation the fit starts from (default: the
             seed with the lowest L_I); the previous window of a track hands its shape on so.
         on_step: called with (step, joint loss terms) after every step of the kept candidate

@@ -150,10 +150,12 @@ def solve_texture(
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
         gram = torch.sparse.mm(transposed, matrix).to_dense()
-    # A tiny ridge keeps texels that no pixel sees (and the Laplacian's constant null space) solvable.
-    system = gram + smoothness * _grid_laplacian(size, gram.device) + 1e-6 * torch.eye(n, device=gram.device)
-    rhs = torch.sparse.mm(transposed, target)
-    texels = torch.cholesky_solve(rhs, torch.linalg.cholesky(system))
+    # A tiny ridge keeps texels that no pixel sees (and the Laplacian's constant null space)
+    # solvable; float64, as float32 Cholesky fails on such nearly singular systems.
+    eye = torch.eye(n, device=gram.device, dtype=torch.float64)
+    system = gram.double() + smoothness * _grid_laplacian(size, gram.device).double() + 1e-6 * eye
+    rhs = torch.sparse.mm(transposed, target).double()
+    texels = torch.cholesky_solve(rhs, torch.linalg.cholesky(system)).to(target.dtype)
     residual = float((torch.sparse.mm(matrix, texels) - target).square().sum())
     return texels.T.reshape(3, size, size), residual
 
@@ -198,7 +200,9 @@ def search_spin(
         step = math.radians(step_deg)
         moved = True
         while moved:
-            moves = [best.spin + sign * step * axis for axis in torch.eye(3) for sign in (1.0, -1.0)]
+            moves = [
+                best.spin + sign * step * axis for axis in torch.eye(3, device=best.spin.device) for sign in (1.0, -1.0)
+            ]
             trial = min((score(s) for s in moves), key=lambda s: s.residual)
             scored += len(moves)
             moved = trial.residual < best.residual
