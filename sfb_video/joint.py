@@ -400,22 +400,20 @@ def fit_window(
     frame_times = torch.tensor([float(f.index - first) for f in frames], device=device)
     seed_index = float(best_seed.index - first)
 
-    def poses(spin: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def orient(spin: torch.Tensor) -> None:
         # The best seed keeps its orientation at its frame's start whatever the spin.
         path.load_rotation(axis_angle_to_matrix(-seed_index * spin) @ best_seed.state.motion.rot0, spin)
+
+    def poses(spin: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        orient(spin)
         with torch.no_grad():
             return path(frame_times, taus)
-
-    def coarse_texture(spin: torch.Tensor, vertices: torch.Tensor, topology: MeshTopology) -> SpinScore:
-        crops = [f.crop for f in frames]
-        args = (config.spin_texture, config.spin_smoothness, render_config)
-        return score_spin(spin.to(device), poses, crops, vertices.to(device), topology.to(device), *args)
 
     def candidate(name: str | None, start: SpinScore | None = None) -> _WindowFit:
         # name None: the best seed's mesh, else a fresh prototype; start: a searched spin and
         # its texture, else the seed's spin (and texture, or grey for a fresh prototype).
         torch.manual_seed(fit_config.seed)
-        poses(spin if start is None else start.spin)
+        orient(spin if start is None else start.spin)
         params = copy.deepcopy(path)
         if name is None:
             proto, topology = load_prototype(best_seed.prototype)
@@ -437,10 +435,12 @@ def fit_window(
         # On the seed's prototype as it was before its single-frame fit deformed it to explain
         # one frame's blur: searched on the deformed mesh the spin came out 40 degrees off, on
         # the prototype 4 (tests/test_joint.py's clip).
-        proto = load_prototype(best_seed.prototype)
+        vertices, topology = (x.to(device) for x in load_prototype(best_seed.prototype))
+        crops = [f.crop for f in frames]
+        args = (crops, vertices, topology, config.spin_texture, config.spin_smoothness, render_config)
         seed_spins = torch.stack([s.state.motion.omega / exposure_fraction for s in seeds]).float()
-        grid = torch.cat((spin_grid(config.spin_magnitudes, config.spin_axes), seed_spins))
-        return search_spin(grid, lambda s: coarse_texture(s, *proto), config.spin_refine)[0]
+        grid = torch.cat((spin_grid(config.spin_magnitudes, config.spin_axes), seed_spins)).to(device)
+        return search_spin(grid, lambda s: score_spin(s, poses, *args), config.spin_refine)[0]
 
     searching = shape_from is None and bool(config.spin_magnitudes) and fit_config.max_rotation_deg > 0
     with deterministic(device):

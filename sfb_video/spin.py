@@ -15,6 +15,7 @@ best candidate is refined by a pattern search; the texture of the winner starts 
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from collections.abc import Callable, Sequence
@@ -28,6 +29,7 @@ from sfb_video.crop import Crop
 from sfb_video.geometry.mesh import MeshTopology
 from sfb_video.geometry.pose import pose_vertices
 from sfb_video.render.rasterizer import rasterize
+from sfb_video.render.shader import silhouette_values, texture_coords
 
 Poses = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 """Spin (3,) -> rotations (F, T, 3, 3) and positions (F, T, 3) of a window's frames."""
@@ -103,10 +105,8 @@ def texture_system(
         with torch.no_grad():
             fragments = rasterize(vertices, topology, crop.camera, settings)
         steps, height, width = fragments.size
-        inside = torch.ones_like(fragments.dist2)
-        alpha = torch.where(fragments.inside, inside, torch.exp(-settings.sigma_inv * fragments.dist2)) / steps
-        uv = torch.bmm(fragments.bary[:, None, :], face_uv.to(fragments.bary)[fragments.face]).squeeze(1)
-        index, weight = _bilinear_taps(uv, size)
+        alpha = silhouette_values(fragments, settings.sigma_inv) / steps
+        index, weight = _bilinear_taps(texture_coords(fragments, face_uv.to(fragments.bary)), size)
         pixel = fragments.pix % (height * width)
         rows.append((pixel + offset)[:, None].expand_as(index).reshape(-1))
         cols.append(index.reshape(-1))
@@ -120,11 +120,13 @@ def texture_system(
     return matrix.coalesce(), torch.cat(targets)
 
 
+@functools.cache
 def _grid_laplacian(size: int, device: torch.device) -> torch.Tensor:
-    """(n, n) the graph Laplacian of a size x size texel grid (4-neighbours), n = size^2."""
+    """(n, n) the graph Laplacian of a size x size texel grid (4-neighbours), n = size^2, in
+    float64; built once per size, as every candidate spin of a search solves with it."""
     n = size * size
     index = torch.arange(n, device=device).reshape(size, size)
-    laplacian = torch.zeros(n, n, device=device)
+    laplacian = torch.zeros(n, n, device=device, dtype=torch.float64)
     for a, b in ((index[:, 1:], index[:, :-1]), (index[1:], index[:-1])):
         a, b = a.reshape(-1), b.reshape(-1)
         laplacian.index_put_((a, a), torch.ones_like(a, dtype=laplacian.dtype), accumulate=True)
@@ -153,7 +155,7 @@ def solve_texture(
     # A tiny ridge keeps texels that no pixel sees (and the Laplacian's constant null space)
     # solvable; float64, as float32 Cholesky fails on such nearly singular systems.
     eye = torch.eye(n, device=gram.device, dtype=torch.float64)
-    system = gram.double() + smoothness * _grid_laplacian(size, gram.device).double() + 1e-6 * eye
+    system = gram.double() + smoothness * _grid_laplacian(size, gram.device) + 1e-6 * eye
     rhs = torch.sparse.mm(transposed, target).double()
     texels = torch.cholesky_solve(rhs, torch.linalg.cholesky(system)).to(target.dtype)
     residual = float((torch.sparse.mm(matrix, texels) - target).square().sum())

@@ -38,6 +38,17 @@ def check_texture(texture: torch.Tensor) -> None:
     check_finite(texture, "texture")
 
 
+def texture_coords(fragments: Fragments, face_uv_coords: torch.Tensor) -> torch.Tensor:
+    """(P, 2) texture coordinates of the point shown at each listed pixel, from the (F, 3, 2)
+    coordinates of each face corner."""
+    return torch.bmm(fragments.bary[:, None, :], face_uv_coords[fragments.face]).squeeze(1)
+
+
+def silhouette_values(fragments: Fragments, sigma_inv: float) -> torch.Tensor:
+    """(P,) coverage of each listed pixel: 1 inside, exp(-sigma_inv * d^2) in the band."""
+    return torch.where(fragments.inside, torch.ones_like(fragments.dist2), torch.exp(-sigma_inv * fragments.dist2))
+
+
 def sample_texture(fragments: Fragments, face_uv_coords: torch.Tensor, texture: torch.Tensor) -> torch.Tensor:
     """Bilinear texture colour at every listed pixel.
 
@@ -49,7 +60,7 @@ def sample_texture(fragments: Fragments, face_uv_coords: torch.Tensor, texture: 
     Returns:
         (T, 3, H, W) colours, 0 at pixels that show no face.
     """
-    uv = torch.bmm(fragments.bary[:, None, :], face_uv_coords[fragments.face]).squeeze(1)  # (P, 2)
+    uv = texture_coords(fragments, face_uv_coords)
     # UV (0, 0) is the texture's top-left corner, which grid_sample calls (-1, -1). The grid is
     # made finite and clamped: grid_sample's CPU backward writes out of bounds on NaN coordinates.
     grid = torch.nan_to_num(2 * uv - 1).clamp(-1.0, 1.0).reshape(1, 1, -1, 2)
@@ -59,8 +70,7 @@ def sample_texture(fragments: Fragments, face_uv_coords: torch.Tensor, texture: 
 
 def soft_silhouette(fragments: Fragments, sigma_inv: float) -> torch.Tensor:
     """(T, 1, H, W) coverage: 1 inside, exp(-sigma_inv * d^2) in the band, 0 beyond."""
-    alpha = torch.where(fragments.inside, torch.ones_like(fragments.dist2), torch.exp(-sigma_inv * fragments.dist2))
-    return fragments.dense(alpha)[:, None]
+    return fragments.dense(silhouette_values(fragments, sigma_inv))[:, None]
 
 
 def shade(fragments: Fragments, topology: MeshTopology, texture: torch.Tensor, sigma_inv: float) -> RenderOutput:
