@@ -22,6 +22,7 @@ import torch
 from sfb_video import __version__
 from sfb_video.checks import OutputError, SfbError, printable
 from sfb_video.config import load_config, save_config
+from sfb_video.interrupts import sigint_outside_kernels
 from sfb_video.run_folder import CONFIG, open_export, open_run
 
 if TYPE_CHECKING:
@@ -456,7 +457,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     os.environ.setdefault("RUST_LOG", "off")
     args = build_parser().parse_args(_attach_dash_values(list(sys.argv[1:] if argv is None else argv)))
     try:
-        return args.func(args)
+        with sigint_outside_kernels():
+            return args.func(args)
     except OutputError as exc:
         resumable = args.command in ("process", "demo")
         kept = "; frames fitted so far are kept: run the same command again to resume" if resumable else ""

@@ -13,6 +13,7 @@ find the same pixels and faces; float64 renders (the gradient tests) take the te
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections.abc import Callable
@@ -20,6 +21,8 @@ from typing import Any
 
 import numpy as np
 import torch
+
+from sfb_video.interrupts import kernel_call
 
 log = logging.getLogger(__name__)
 
@@ -192,15 +195,25 @@ def _nearest_edges(
 
 
 def compile_kernel(function: Callable[..., Any], inline: bool = False) -> Callable[..., Any]:
-    """``function`` compiled by numba (cached on disk where a cache folder is writable);
-    ``inline``: compiled into each compiled caller instead (small helpers)."""
+    """``function`` compiled by numba (cached on disk where a cache folder is writable), called
+    as a :func:`~sfb_video.interrupts.kernel_call`; ``inline``: compiled into each compiled caller
+    instead (small helpers)."""
     options = {"nogil": True, "error_model": "numpy", "inline": "always" if inline else "never"}
     # The on-disk cache saves the ~1 s compile per process; where no cache folder is writable
     # (a read-only install and home), numba refuses cache=True and it compiles every time.
     try:
-        return njit(cache=True, **options)(function)
+        compiled = njit(cache=True, **options)(function)
     except RuntimeError:
-        return njit(**options)(function)
+        compiled = njit(**options)(function)
+    if inline:
+        return compiled
+
+    @functools.wraps(function)
+    def call(*args: Any) -> Any:
+        with kernel_call():
+            return compiled(*args)
+
+    return call
 
 
 if njit is not None:
