@@ -6,8 +6,10 @@ tensor operations (:func:`~sfb_video.render.rasterizer.interpolate` and the shad
 about sixty small operations forward and as many backward, and at the fitter's crops (~10k
 listed pixels) their fixed cost, not the arithmetic, is most of a fit step (benchmarks/RESULTS.md,
 "Renderer speed"). Here the forward pass is one numba loop over the listed pixels and the
-backward pass another, with the derivatives written out; a serial loop adds the gradients in
-a fixed order, so results are deterministic. The tensor version stays the reference (and the
+backward pass another, with the derivatives written out. Both split the list into a fixed
+number of parts (``CHUNKS``) that run on numba's threads, each adding into its own image or
+gradients, which are then summed in part order: the results are the same on any number of
+threads. The tensor version stays the reference (and the
 CUDA path): the tests hold both to the same values and gradients.
 
 The forward pass per pixel, as in the tensor version:
@@ -37,6 +39,10 @@ import torch
 from sfb_video.geometry.mesh import MeshTopology
 from sfb_video.render import kernels
 from sfb_video.render.fragments import PixelLists
+from sfb_video.render.kernels import prange
+
+# Fixed, not the thread count: each part's gradients are summed in the same order on any machine.
+CHUNKS = 4
 
 # The flat arrays both passes take, in this order, after uv, depth and the texture.
 _Lists = tuple[np.ndarray, ...]
@@ -150,7 +156,9 @@ def _bilinear(v00: float, v01: float, v10: float, v11: float, wx: float, wy: flo
     return (1 - wy) * ((1 - wx) * v00 + wx * v01) + wy * ((1 - wx) * v10 + wx * v11)
 
 
-def _forward(
+def _forward_range(
+    lo: int,
+    hi: int,
     uv: np.ndarray,
     depth: np.ndarray,
     texture: np.ndarray,
@@ -170,14 +178,15 @@ def _forward(
     rgb: np.ndarray,
     alpha: np.ndarray,
 ) -> None:
-    """Fill ``alpha`` (T, H, W) at the listed pixels, and their colour into ``rgb``: as
-    (T, 3, H, W) renders, or with ``blur`` composited over ``background`` (3, H, W) into the
-    blurred image (1, 3, H, W), which must hold the background on entry."""
+    """Fill ``alpha`` (T, H, W) at the listed pixels ``lo`` to ``hi`` (inside, then in the
+    band), and their colour into ``rgb``: as (T, 3, H, W) renders, or with ``blur`` composited
+    over ``background`` (3, H, W) into the blurred image (1, 3, H, W): added as
+    alpha (colour - background) / T, onto the background or a part that is added to it."""
     height, width = alpha.shape[1], alpha.shape[2]
     num_t = alpha.shape[0]
     raw = np.empty(3, dtype=np.float64)
     bary = np.empty(3, dtype=np.float64)
-    for n in range(pix_in.shape[0] + pix_out.shape[0]):
+    for n in range(lo, hi):
         # Spelled out in both passes: as an inlined helper returning this tuple it made the
         # passes 1.5x slower (measured at the paper's setting).
         inside = n < pix_in.shape[0]
@@ -208,7 +217,9 @@ def _forward(
                 rgb[t, c, y, x] = colour
 
 
-def _backward(
+def _backward_range(
+    lo: int,
+    hi: int,
     uv: np.ndarray,
     depth: np.ndarray,
     texture: np.ndarray,
@@ -232,16 +243,16 @@ def _backward(
     grad_depth: np.ndarray,
     grad_texture: np.ndarray,
 ) -> None:
-    """Add the gradients of the listed pixels' colour and coverage to ``grad_uv`` (T, V, 2),
-    ``grad_depth`` (T, V) and ``grad_texture`` (3, Ht, Wt), pixel by pixel in list order;
-    ``grad_rgb`` is that of the renders (T, 3, H, W), or with ``blur`` of the blurred image
-    (1, 3, H, W)."""
+    """Add the gradients of the colour and coverage of the listed pixels ``lo`` to ``hi`` to
+    ``grad_uv`` (T, V, 2), ``grad_depth`` (T, V) and ``grad_texture`` (3, Ht, Wt), pixel by pixel
+    in list order; ``grad_rgb`` is that of the renders (T, 3, H, W), or with ``blur`` of the
+    blurred image (1, 3, H, W)."""
     height, width = alpha.shape[1], alpha.shape[2]
     num_t = alpha.shape[0]
     raw = np.empty(3, dtype=np.float64)
     bary = np.empty(3, dtype=np.float64)
     g_bary = np.empty(3, dtype=np.float64)
-    for n in range(pix_in.shape[0] + pix_out.shape[0]):
+    for n in range(lo, hi):
         # Spelled out in both passes: as an inlined helper returning this tuple it made the
         # passes 1.5x slower (measured at the paper's setting).
         inside = n < pix_in.shape[0]
@@ -342,38 +353,164 @@ def _backward(
             grad_uv[t, b, 1] += g_aby
 
 
+def _chunk(n: int, count: int, chunk: int) -> tuple[int, int]:
+    """The ``chunk``-th of ``count`` contiguous parts of range(n)."""
+    return n * chunk // count, n * (chunk + 1) // count
+
+
+def _forward(
+    uv: np.ndarray,
+    depth: np.ndarray,
+    texture: np.ndarray,
+    faces: np.ndarray,
+    face_uv: np.ndarray,
+    pix_in: np.ndarray,
+    t_in: np.ndarray,
+    face_in: np.ndarray,
+    pix_out: np.ndarray,
+    t_out: np.ndarray,
+    ends: np.ndarray,
+    face_out: np.ndarray,
+    slots: np.ndarray,
+    sigma_unit: float,
+    background: np.ndarray,
+    blur: bool,
+    rgb: np.ndarray,
+    alpha: np.ndarray,
+) -> None:
+    """:func:`_forward_range` over all listed pixels on ``CHUNKS`` threads; with ``blur`` each
+    adds into its own part of the blurred image, and the parts are summed in a fixed order."""
+    n = pix_in.shape[0] + pix_out.shape[0]
+    # With blur each part adds into its own image; the renders' pixels are written once each.
+    parts = np.zeros((CHUNKS if blur else 1, 1, 3, rgb.shape[2], rgb.shape[3]), dtype=rgb.dtype)
+    for chunk in prange(CHUNKS):
+        lo, hi = _chunk(n, CHUNKS, chunk)
+        out = parts[chunk] if blur else rgb
+        _forward_range(
+            lo,
+            hi,
+            uv,
+            depth,
+            texture,
+            faces,
+            face_uv,
+            pix_in,
+            t_in,
+            face_in,
+            pix_out,
+            t_out,
+            ends,
+            face_out,
+            slots,
+            sigma_unit,
+            background,
+            blur,
+            out,
+            alpha,
+        )
+    if not blur:
+        return
+    for chunk in range(CHUNKS):
+        rgb += parts[chunk]
+
+
+def _backward(
+    uv: np.ndarray,
+    depth: np.ndarray,
+    texture: np.ndarray,
+    faces: np.ndarray,
+    face_uv: np.ndarray,
+    pix_in: np.ndarray,
+    t_in: np.ndarray,
+    face_in: np.ndarray,
+    pix_out: np.ndarray,
+    t_out: np.ndarray,
+    ends: np.ndarray,
+    face_out: np.ndarray,
+    slots: np.ndarray,
+    sigma_unit: float,
+    background: np.ndarray,
+    blur: bool,
+    alpha: np.ndarray,
+    grad_rgb: np.ndarray,
+    grad_alpha: np.ndarray,
+    grad_uv: np.ndarray,
+    grad_depth: np.ndarray,
+    grad_texture: np.ndarray,
+) -> None:
+    """:func:`_backward_range` over all listed pixels on ``CHUNKS`` threads, each into its own
+    gradients, summed in a fixed order."""
+    n = pix_in.shape[0] + pix_out.shape[0]
+    g_uv = np.zeros((CHUNKS, grad_uv.shape[0], grad_uv.shape[1], 2), dtype=grad_uv.dtype)
+    g_depth = np.zeros((CHUNKS, grad_depth.shape[0], grad_depth.shape[1]), dtype=grad_depth.dtype)
+    g_texture = np.zeros((CHUNKS, 3, grad_texture.shape[1], grad_texture.shape[2]), dtype=grad_texture.dtype)
+    for chunk in prange(CHUNKS):
+        lo, hi = _chunk(n, CHUNKS, chunk)
+        _backward_range(
+            lo,
+            hi,
+            uv,
+            depth,
+            texture,
+            faces,
+            face_uv,
+            pix_in,
+            t_in,
+            face_in,
+            pix_out,
+            t_out,
+            ends,
+            face_out,
+            slots,
+            sigma_unit,
+            background,
+            blur,
+            alpha,
+            grad_rgb,
+            grad_alpha,
+            g_uv[chunk],
+            g_depth[chunk],
+            g_texture[chunk],
+        )
+    for chunk in range(CHUNKS):
+        grad_uv += g_uv[chunk]
+        grad_depth += g_depth[chunk]
+        grad_texture += g_texture[chunk]
+
+
 def _swept_forward(alpha: np.ndarray, out: np.ndarray) -> None:
-    """out (H, W) = 1 - prod_t (1 - alpha (T, H, W))."""
-    for y in range(alpha.shape[1]):
-        for x in range(alpha.shape[2]):
-            product = 1.0
-            for t in range(alpha.shape[0]):
-                product *= 1.0 - alpha[t, y, x]
-            out[y, x] = 1.0 - product
+    """out (H, W) = 1 - prod_t (1 - alpha (T, H, W)); rows on numba's threads."""
+    num_t, height, width = alpha.shape
+    for y in prange(height):
+        product = np.ones(width, dtype=np.float64)
+        for t in range(num_t):
+            for x in range(width):
+                product[x] *= 1.0 - alpha[t, y, x]
+        for x in range(width):
+            out[y, x] = 1.0 - product[x]
 
 
 def _swept_backward(alpha: np.ndarray, grad_out: np.ndarray, grad_alpha: np.ndarray) -> None:
     """d out / d alpha_t = prod over the other s of (1 - alpha_s), from prefix and suffix
-    products (exact where some alpha is 1, unlike a division)."""
-    num_t = alpha.shape[0]
-    prefix = np.empty(num_t + 1, dtype=np.float64)
-    for y in range(alpha.shape[1]):
-        for x in range(alpha.shape[2]):
-            g = grad_out[y, x]
-            if g == 0.0:
-                continue
-            prefix[0] = 1.0
-            for t in range(num_t):
-                prefix[t + 1] = prefix[t] * (1.0 - alpha[t, y, x])
-            suffix = 1.0
-            for t in range(num_t - 1, -1, -1):
-                grad_alpha[t, y, x] = g * prefix[t] * suffix
-                suffix *= 1.0 - alpha[t, y, x]
+    products (exact where some alpha is 1, unlike a division); rows on numba's threads, each
+    swept along x (alpha's contiguous axis) one t at a time."""
+    num_t, height, width = alpha.shape
+    for y in prange(height):
+        prefix = np.empty((num_t + 1, width), dtype=np.float64)
+        prefix[0] = 1.0
+        for t in range(num_t):
+            for x in range(width):
+                prefix[t + 1, x] = prefix[t, x] * (1.0 - alpha[t, y, x])
+        suffix = np.ones(width, dtype=np.float64)
+        for t in range(num_t - 1, -1, -1):
+            for x in range(width):
+                grad_alpha[t, y, x] = grad_out[y, x] * prefix[t, x] * suffix[x]
+                suffix[x] *= 1.0 - alpha[t, y, x]
 
 
 if kernels.njit is not None:
-    _swept_forward = kernels.compile_kernel(_swept_forward)
-    _swept_backward = kernels.compile_kernel(_swept_backward)
+    _swept_forward = kernels.compile_kernel(_swept_forward, parallel=True)
+    _swept_backward = kernels.compile_kernel(_swept_backward, parallel=True)
     _sample = kernels.compile_kernel(_sample, inline=True)
     _texel = kernels.compile_kernel(_texel, inline=True)
     _add_texel = kernels.compile_kernel(_add_texel, inline=True)
@@ -381,8 +518,11 @@ if kernels.njit is not None:
     _band_bary = kernels.compile_kernel(_band_bary, inline=True)
     _texcoords = kernels.compile_kernel(_texcoords, inline=True)
     _bilinear = kernels.compile_kernel(_bilinear, inline=True)
-    _forward = kernels.compile_kernel(_forward)
-    _backward = kernels.compile_kernel(_backward)
+    _forward_range = kernels.compile_kernel(_forward_range, inline=True)
+    _backward_range = kernels.compile_kernel(_backward_range, inline=True)
+    _chunk = kernels.compile_kernel(_chunk, inline=True)
+    _forward = kernels.compile_kernel(_forward, parallel=True)
+    _backward = kernels.compile_kernel(_backward, parallel=True)
 
 
 def _flat(uv: torch.Tensor, lists: PixelLists, topology: MeshTopology) -> _Lists:
@@ -505,7 +645,7 @@ class _Swept(torch.autograd.Function):
     @staticmethod
     def backward(ctx: torch.autograd.function.FunctionCtx, grad_out: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
         (alpha,) = ctx.saved_tensors  # type: ignore[attr-defined]
-        grad = torch.zeros_like(alpha)
+        grad = torch.empty_like(alpha)
         _swept_backward(alpha.numpy(), grad_out.contiguous().numpy(), grad.numpy())
         return grad
 

@@ -27,9 +27,9 @@ from sfb_video.interrupts import kernel_call
 log = logging.getLogger(__name__)
 
 try:
-    from numba import njit
+    from numba import njit, prange
 except ImportError:  # pragma: no cover - numba is a dependency; a broken install falls back
-    njit = None
+    njit, prange = None, range
     log.info("numba is not importable: the rasteriser's searches run as tensor operations (slower)")
 
 
@@ -54,31 +54,41 @@ def _nearest_faces(
         candidates: (K, 2) int64 (render, face) of every rasterised face, in (render, face)
             order; front: (T, F) bool, which faces face the camera.
     """
-    num_t = uv.shape[0]
+    num_t, num_f = uv.shape[0], faces.shape[0]
     best = np.full(num_t * height * width, -np.inf, dtype=np.float32)
     owner = np.full(num_t * height * width, -1, dtype=np.int64)
-    front = np.zeros((num_t, faces.shape[0]), dtype=np.bool_)
-    candidates = np.empty((num_t * faces.shape[0], 2), dtype=np.int64)
-    tri = np.empty((3, 2), dtype=np.float32)
-    inv_z = np.empty(3, dtype=np.float32)
+    front = np.zeros((num_t, num_f), dtype=np.bool_)
+    keep = np.zeros((num_t, num_f), dtype=np.bool_)
     min_area32 = np.float32(min_area)
-    k = 0
+    # The renders write disjoint parts of ``best`` and ``owner``: one per thread. Candidates are
+    # numbered in (render, face) order, so each render's first number is counted beforehand.
+    for t in prange(num_t):
+        for f in range(num_f):
+            a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+            d1x, d1y = uv[t, b, 0] - uv[t, a, 0], uv[t, b, 1] - uv[t, a, 1]
+            d2x, d2y = uv[t, c, 0] - uv[t, a, 0], uv[t, c, 1] - uv[t, a, 1]
+            area = d1x * d2y - d1y * d2x
+            front[t, f] = area < 0
+            keep[t, f] = abs(area) > min_area32 and (area < 0 or not closed)
+    first = np.zeros(num_t + 1, dtype=np.int64)
     for t in range(num_t):
-        for f in range(faces.shape[0]):
+        first[t + 1] = first[t] + np.count_nonzero(keep[t])
+    candidates = np.empty((first[num_t], 2), dtype=np.int64)
+    for t in prange(num_t):
+        tri = np.empty((3, 2), dtype=np.float32)
+        inv_z = np.empty(3, dtype=np.float32)
+        k = first[t]
+        for f in range(num_f):
+            if not keep[t, f]:
+                continue
             for i in range(3):
                 tri[i, 0], tri[i, 1] = uv[t, faces[f, i], 0], uv[t, faces[f, i], 1]
                 inv_z[i] = np.float32(1.0) / depth[t, faces[f, i]]
-            d1x, d1y = tri[1, 0] - tri[0, 0], tri[1, 1] - tri[0, 1]
-            d2x, d2y = tri[2, 0] - tri[0, 0], tri[2, 1] - tri[0, 1]
-            area = d1x * d2y - d1y * d2x
-            front[t, f] = area < 0
-            if not (abs(area) > min_area32 and (area < 0 or not closed)):
-                continue
             candidates[k, 0], candidates[k, 1] = t, f
             _scan_face(tri, inv_z, t * height * width, k, height, width, best, owner)
             k += 1
     pix = np.nonzero(owner >= 0)[0]
-    return pix, owner[pix], best[pix], candidates[:k], front
+    return pix, owner[pix], best[pix], candidates, front
 
 
 def _scan_face(
@@ -157,7 +167,7 @@ def _nearest_edges(
     best = np.full(num_t * height * width, np.inf, dtype=np.float32)
     owner = np.full(num_t * height * width, -1, dtype=np.int64)
     r2 = np.float32(radius * radius)
-    for t in range(num_t):
+    for t in prange(num_t):  # disjoint parts of ``best`` and ``owner``: one render per thread
         for e in range(edges.shape[0]):
             has_two = edge_faces[e, 1] >= 0
             front0 = front[t, edge_faces[e, 0]]
@@ -194,11 +204,11 @@ def _nearest_edges(
     return pix, t_idx, edge, side
 
 
-def compile_kernel(function: Callable[..., Any], inline: bool = False) -> Callable[..., Any]:
+def compile_kernel(function: Callable[..., Any], inline: bool = False, parallel: bool = False) -> Callable[..., Any]:
     """``function`` compiled by numba (cached on disk where a cache folder is writable), called
     as a :func:`~sfb_video.interrupts.kernel_call`; ``inline``: compiled into each compiled caller
-    instead (small helpers)."""
-    options = {"nogil": True, "error_model": "numpy", "inline": "always" if inline else "never"}
+    instead (small helpers); ``parallel``: its ``prange`` loops run on numba's threads."""
+    options = {"nogil": True, "error_model": "numpy", "inline": "always" if inline else "never", "parallel": parallel}
     # The on-disk cache saves the ~1 s compile per process; where no cache folder is writable
     # (a read-only install and home), numba refuses cache=True and it compiles every time.
     try:
@@ -218,8 +228,8 @@ def compile_kernel(function: Callable[..., Any], inline: bool = False) -> Callab
 
 if njit is not None:
     _scan_face = compile_kernel(_scan_face, inline=True)
-    _nearest_faces = compile_kernel(_nearest_faces)
-    _nearest_edges = compile_kernel(_nearest_edges)
+    _nearest_faces = compile_kernel(_nearest_faces, parallel=True)
+    _nearest_edges = compile_kernel(_nearest_edges, parallel=True)
 
 
 def nearest_faces(

@@ -11,7 +11,7 @@ from sfb_video.config import RenderConfig
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.model.formation import composite
-from sfb_video.render import MeshRenderer, fused, rasterize
+from sfb_video.render import MeshRenderer, fused, kernels, rasterize
 from sfb_video.render.shader import shade
 
 # float64: rounding apart, the same numbers; float32 (the fitter's): within float32's rounding.
@@ -73,3 +73,19 @@ def test_compiled_swept_region_matches_the_product_in_values_and_gradients() -> 
     assert torch.allclose(fused.swept(alpha), 1 - (1 - alpha).prod(0), atol=1e-14)
     assert torch.allclose(a.grad, b.grad, atol=1e-14)
     assert torch.autograd.gradcheck(fused.swept, (alpha[:, 1:, 1:].clone().requires_grad_(),))
+
+
+@pytest.mark.skipif(kernels.njit is None, reason="numba is not installed")
+def test_the_passes_give_the_same_bits_on_one_thread_and_on_several() -> None:
+    import numba
+
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = _run(True, True, torch.float32, "torus")
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        several = _run(True, True, torch.float32, "torus")
+    finally:
+        numba.set_num_threads(threads)
+    for a, b in zip(one, several, strict=True):
+        assert torch.equal(a, b)
