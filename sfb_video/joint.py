@@ -142,8 +142,11 @@ def _fit_path(params: TrajectoryParams, seeds: list[Seed], first: int, exposure:
     t, target = _streak_ends(seeds, first, exposure)
     uv, depth = params.camera.project(target)
     log_size = torch.log(params.camera.fy / depth)
-    # Start from the seeds themselves, interpolated at the anchors' times.
-    params.load_anchors(torch.stack([_interp(params.times, t, target[:, k]) for k in range(3)], -1))
+    # Start from the seeds themselves, interpolated at the anchors' times in the image and in
+    # log depth: extrapolated in camera space, a depth can end behind the camera (circle_fast).
+    start_uv = torch.stack([_interp(params.times, t, uv[:, k]) for k in range(2)], -1)
+    start_depth = torch.exp(_interp(params.times, t, torch.log(depth)))
+    params.load_anchors(params.camera.unproject(start_uv, start_depth))
     optimiser = torch.optim.Adam([params.anchors_raw], lr=0.05)
     for _ in range(steps):
         optimiser.zero_grad(set_to_none=True)
@@ -376,7 +379,8 @@ def fit_window(
             (and of every candidate during the trials).
 
     Raises:
-        RuntimeError: when every candidate's loss is non-finite from its first step.
+        RuntimeError: when no finite path fits the seeds, or every candidate's loss is
+            non-finite from its first step.
     """
     device = frames[0].crop.image.device
     first = frames[0].index
@@ -397,6 +401,8 @@ def fit_window(
 
     path = _path_params(model, bounce, end, camera, ref_px, exposure_fraction, config, fit_config.max_rotation_deg)
     _fit_path(path, seeds, first, exposure_fraction, config.path_steps)
+    if not bool(torch.isfinite(path.anchors_raw).all()):
+        raise RuntimeError("no finite path through the seeds' streaks")
     frame_times = torch.tensor([float(f.index - first) for f in frames], device=device)
     seed_index = float(best_seed.index - first)
 

@@ -156,3 +156,18 @@ def test_the_spin_search_recovers_the_rotation_where_single_frames_do_not(
     # Measured: single-frame fits 51-74 degrees off, the joint fit 3.8.
     assert min(single) > 40
     assert max(joint) < 10
+
+
+def test_a_path_start_extrapolated_towards_the_camera_stays_in_front_of_it(clip: SyntheticClip) -> None:
+    # The last streak runs fast towards the camera: extrapolated in camera space to the window's
+    # end (1 frame interval after its start, 0.3 after the streak's end) its depth falls below
+    # zero, which made the start NaN and crashed the run (circle_fast.avi).
+    seeds = _seeds(clip, [1.0, 1.0, 1.0, 1.0])[:2]
+    last = seeds[1].state.motion
+    towards = dataclasses.replace(last, dx=torch.tensor([0.0, 0.0, -0.9 * float(last.x0[2])]))
+    seeds[1] = dataclasses.replace(seeds[1], state=dataclasses.replace(seeds[1].state, motion=towards))
+    config = dataclasses.replace(CONFIG.joint, iterations=2, learn_exposure=False, motion="constant_velocity")
+    result = fit_window(_frames(clip)[:2], seeds, clip.camera, CONFIG.fit, config, CONFIG.render, TRUE_EXPOSURE)
+    for index in (0, 1):
+        motion = result.state(index).motion
+        assert bool(torch.isfinite(motion.x0).all()) and float(motion.x0[2]) > 0
