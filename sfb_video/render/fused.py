@@ -156,203 +156,6 @@ def _bilinear(v00: float, v01: float, v10: float, v11: float, wx: float, wy: flo
     return (1 - wy) * ((1 - wx) * v00 + wx * v01) + wy * ((1 - wx) * v10 + wx * v11)
 
 
-def _forward_range(
-    lo: int,
-    hi: int,
-    uv: np.ndarray,
-    depth: np.ndarray,
-    texture: np.ndarray,
-    faces: np.ndarray,
-    face_uv: np.ndarray,
-    pix_in: np.ndarray,
-    t_in: np.ndarray,
-    face_in: np.ndarray,
-    pix_out: np.ndarray,
-    t_out: np.ndarray,
-    ends: np.ndarray,
-    face_out: np.ndarray,
-    slots: np.ndarray,
-    sigma_unit: float,
-    background: np.ndarray,
-    blur: bool,
-    rgb: np.ndarray,
-    alpha: np.ndarray,
-) -> None:
-    """Fill ``alpha`` (T, H, W) at the listed pixels ``lo`` to ``hi`` (inside, then in the
-    band), and their colour into ``rgb``: as (T, 3, H, W) renders, or with ``blur`` composited
-    over ``background`` (3, H, W) into the blurred image (1, 3, H, W): added as
-    alpha (colour - background) / T, onto the background or a part that is added to it."""
-    height, width = alpha.shape[1], alpha.shape[2]
-    num_t = alpha.shape[0]
-    raw = np.empty(3, dtype=np.float64)
-    bary = np.empty(3, dtype=np.float64)
-    for n in range(lo, hi):
-        # Spelled out in both passes: as an inlined helper returning this tuple it made the
-        # passes 1.5x slower (measured at the paper's setting).
-        inside = n < pix_in.shape[0]
-        m = n if inside else n - pix_in.shape[0]
-        pix = pix_in[m] if inside else pix_out[m]
-        t = t_in[m] if inside else t_out[m]
-        f = face_in[m] if inside else face_out[m]
-        x, y = pix % width, (pix // width) % height
-        px, py = float(x), float(y)
-        if inside:
-            _inside_bary(uv, depth, faces[f], t, px, py, raw, bary)
-            alpha[t, y, x] = 1.0
-        else:
-            _, _, _, _, _, dx, dy, _, _ = _band_bary(
-                uv, depth, ends[m, 0], ends[m, 1], slots[m, 0], slots[m, 1], t, px, py, bary
-            )
-            alpha[t, y, x] = math.exp(-sigma_unit * (dx * dx + dy * dy))
-        s, tt = _texcoords(bary, face_uv, f)
-        _, _, x0, y0, wx, wy, _, _ = _sample(texture, s, tt)
-        for c in range(3):
-            v00, v01 = _texel(texture, c, y0, x0), _texel(texture, c, y0, x0 + 1)
-            v10, v11 = _texel(texture, c, y0 + 1, x0), _texel(texture, c, y0 + 1, x0 + 1)
-            colour = _bilinear(v00, v01, v10, v11, wx, wy)
-            if blur:
-                # I = mean_t(F_t A_t) + (1 - mean_t A_t) B, one listed pixel at a time.
-                rgb[0, c, y, x] += alpha[t, y, x] * (colour - background[c, y, x]) / num_t
-            else:
-                rgb[t, c, y, x] = colour
-
-
-def _backward_range(
-    lo: int,
-    hi: int,
-    uv: np.ndarray,
-    depth: np.ndarray,
-    texture: np.ndarray,
-    faces: np.ndarray,
-    face_uv: np.ndarray,
-    pix_in: np.ndarray,
-    t_in: np.ndarray,
-    face_in: np.ndarray,
-    pix_out: np.ndarray,
-    t_out: np.ndarray,
-    ends: np.ndarray,
-    face_out: np.ndarray,
-    slots: np.ndarray,
-    sigma_unit: float,
-    background: np.ndarray,
-    blur: bool,
-    alpha: np.ndarray,
-    grad_rgb: np.ndarray,
-    grad_alpha: np.ndarray,
-    grad_uv: np.ndarray,
-    grad_depth: np.ndarray,
-    grad_texture: np.ndarray,
-) -> None:
-    """Add the gradients of the colour and coverage of the listed pixels ``lo`` to ``hi`` to
-    ``grad_uv`` (T, V, 2), ``grad_depth`` (T, V) and ``grad_texture`` (3, Ht, Wt), pixel by pixel
-    in list order; ``grad_rgb`` is that of the renders (T, 3, H, W), or with ``blur`` of the
-    blurred image (1, 3, H, W)."""
-    height, width = alpha.shape[1], alpha.shape[2]
-    num_t = alpha.shape[0]
-    raw = np.empty(3, dtype=np.float64)
-    bary = np.empty(3, dtype=np.float64)
-    g_bary = np.empty(3, dtype=np.float64)
-    for n in range(lo, hi):
-        # Spelled out in both passes: as an inlined helper returning this tuple it made the
-        # passes 1.5x slower (measured at the paper's setting).
-        inside = n < pix_in.shape[0]
-        m = n if inside else n - pix_in.shape[0]
-        pix = pix_in[m] if inside else pix_out[m]
-        t = t_in[m] if inside else t_out[m]
-        f = face_in[m] if inside else face_out[m]
-        x, y = pix % width, (pix // width) % height
-        px, py = float(x), float(y)
-        # The forward pass again, keeping what the derivatives need.
-        ax = ay = abx = aby = lam = dx = dy = v0 = v1 = total = 0.0
-        a = b = 0
-        if inside:
-            total = _inside_bary(uv, depth, faces[f], t, px, py, raw, bary)
-        else:
-            a, b = ends[m, 0], ends[m, 1]
-            ax, ay, abx, aby, lam, dx, dy, v0, v1 = _band_bary(
-                uv, depth, a, b, slots[m, 0], slots[m, 1], t, px, py, bary
-            )
-        s, tt = _texcoords(bary, face_uv, f)
-        _, _, x0, y0, wx, wy, ds, dt = _sample(texture, s, tt)
-
-        # Texture sampling: into the four texels, and into (s, t).
-        g_ix = g_iy = 0.0
-        g_alpha = grad_alpha[t, y, x]
-        for c in range(3):
-            v00, v01 = _texel(texture, c, y0, x0), _texel(texture, c, y0, x0 + 1)
-            v10, v11 = _texel(texture, c, y0 + 1, x0), _texel(texture, c, y0 + 1, x0 + 1)
-            if blur:
-                colour = _bilinear(v00, v01, v10, v11, wx, wy)
-                g_alpha += grad_rgb[0, c, y, x] * (colour - background[c, y, x]) / num_t
-                g = grad_rgb[0, c, y, x] * alpha[t, y, x] / num_t
-            else:
-                g = grad_rgb[t, c, y, x]
-            if g == 0.0:
-                continue
-            g_ix += g * ((1 - wy) * (v01 - v00) + wy * (v11 - v10))
-            g_iy += g * ((1 - wx) * (v10 - v00) + wx * (v11 - v01))
-            _add_texel(grad_texture, c, y0, x0, g * (1 - wx) * (1 - wy))
-            _add_texel(grad_texture, c, y0, x0 + 1, g * wx * (1 - wy))
-            _add_texel(grad_texture, c, y0 + 1, x0, g * (1 - wx) * wy)
-            _add_texel(grad_texture, c, y0 + 1, x0 + 1, g * wx * wy)
-        g_s, g_t = g_ix * ds, g_iy * dt
-        for i in range(3):
-            g_bary[i] = g_s * face_uv[f, i, 0] + g_t * face_uv[f, i, 1]
-
-        if inside:
-            corners = faces[f]
-            dot = g_bary[0] * bary[0] + g_bary[1] * bary[1] + g_bary[2] * bary[2]
-            ox, oy = uv[t, corners[0], 0], uv[t, corners[0], 1]
-            du, dv = px - ox, py - oy
-            for i in range(3):
-                g_raw = (g_bary[i] - dot) / total
-                z = depth[t, corners[i]]
-                grad_depth[t, corners[i]] -= g_raw * raw[i] / z
-                g_m = g_raw / z
-                # m_i is the cross product (q - p) x (r - p): the first corner (the origin)
-                # cancels out of it, so only the next two corners get its gradient.
-                j, k = corners[(i + 1) % 3], corners[(i + 2) % 3]
-                qx, qy = uv[t, j, 0] - ox, uv[t, j, 1] - oy
-                rx, ry = uv[t, k, 0] - ox, uv[t, k, 1] - oy
-                grad_uv[t, j, 0] += g_m * (ry - dv)
-                grad_uv[t, j, 1] += g_m * (du - rx)
-                grad_uv[t, k, 0] += g_m * (dv - qy)
-                grad_uv[t, k, 1] += g_m * (qx - du)
-        else:
-            # Edge weights w_k = v_k / (v0 + v1), v0 = (1 - lam) / z_a, v1 = lam / z_b.
-            g_w0, g_w1 = g_bary[slots[m, 0]], g_bary[slots[m, 1]]
-            total = v0 + v1
-            dot = (g_w0 * v0 + g_w1 * v1) / total
-            g_v0, g_v1 = (g_w0 - dot) / total, (g_w1 - dot) / total
-            z_a, z_b = depth[t, a], depth[t, b]
-            grad_depth[t, a] -= g_v0 * v0 / z_a
-            grad_depth[t, b] -= g_v1 * v1 / z_b
-            g_lam = -g_v0 / z_a + g_v1 / z_b
-            # alpha = exp(-sigma_unit * d2), d = p - (a + lam ab).
-            g_d2 = -g_alpha * alpha[t, y, x] * sigma_unit
-            g_cx, g_cy = -2.0 * dx * g_d2, -2.0 * dy * g_d2
-            g_ax, g_ay = g_cx, g_cy
-            g_abx, g_aby = lam * g_cx, lam * g_cy
-            g_lam += g_cx * abx + g_cy * aby
-            length2 = abx * abx + aby * aby
-            raw_lam = ((px - ax) * abx + (py - ay) * aby) / max(length2, 1e-20)
-            if 0.0 <= raw_lam <= 1.0:
-                denominator = max(length2, 1e-20)
-                g_num = g_lam / denominator
-                g_ax -= g_num * abx
-                g_ay -= g_num * aby
-                g_abx += g_num * (px - ax)
-                g_aby += g_num * (py - ay)
-                if length2 >= 1e-20:
-                    g_den = -g_lam * raw_lam / denominator
-                    g_abx += 2.0 * g_den * abx
-                    g_aby += 2.0 * g_den * aby
-            grad_uv[t, a, 0] += g_ax - g_abx
-            grad_uv[t, a, 1] += g_ay - g_aby
-            grad_uv[t, b, 0] += g_abx
-            grad_uv[t, b, 1] += g_aby
-
-
 def _chunk(n: int, count: int, chunk: int) -> tuple[int, int]:
     """The ``chunk``-th of ``count`` contiguous parts of range(n)."""
     return n * chunk // count, n * (chunk + 1) // count
@@ -378,40 +181,53 @@ def _forward(
     rgb: np.ndarray,
     alpha: np.ndarray,
 ) -> None:
-    """:func:`_forward_range` over all listed pixels on ``CHUNKS`` threads; with ``blur`` each
-    adds into its own part of the blurred image, and the parts are summed in a fixed order."""
-    n = pix_in.shape[0] + pix_out.shape[0]
-    # With blur each part adds into its own image; the renders' pixels are written once each.
-    parts = np.zeros((CHUNKS if blur else 1, 1, 3, rgb.shape[2], rgb.shape[3]), dtype=rgb.dtype)
+    """Fill ``alpha`` (T, H, W) at the listed pixels (inside, then in the band), and their
+    colour into ``rgb``: as (T, 3, H, W) renders, or with ``blur`` composited over
+    ``background`` (3, H, W) into the blurred image (1, 3, H, W), which must hold the background
+    on entry. The list runs in ``CHUNKS`` parts on numba's threads; with ``blur`` each part adds
+    into an image of its own, and these are added to ``rgb`` in part order."""
+    height, width = alpha.shape[1], alpha.shape[2]
+    num_t = alpha.shape[0]
+    n_listed = pix_in.shape[0] + pix_out.shape[0]
+    # The renders' pixels are written once each, so the parts may share ``rgb``.
+    parts = np.zeros((CHUNKS if blur else 1, 1, 3, height, width), dtype=rgb.dtype)
     for chunk in prange(CHUNKS):
-        lo, hi = _chunk(n, CHUNKS, chunk)
+        lo, hi = _chunk(n_listed, CHUNKS, chunk)
         out = parts[chunk] if blur else rgb
-        _forward_range(
-            lo,
-            hi,
-            uv,
-            depth,
-            texture,
-            faces,
-            face_uv,
-            pix_in,
-            t_in,
-            face_in,
-            pix_out,
-            t_out,
-            ends,
-            face_out,
-            slots,
-            sigma_unit,
-            background,
-            blur,
-            out,
-            alpha,
-        )
-    if not blur:
-        return
-    for chunk in range(CHUNKS):
-        rgb += parts[chunk]
+        raw = np.empty(3, dtype=np.float64)
+        bary = np.empty(3, dtype=np.float64)
+        for n in range(lo, hi):
+            # Spelled out in both passes: as an inlined helper returning this tuple it made the
+            # passes 1.5x slower (measured at the paper's setting).
+            inside = n < pix_in.shape[0]
+            m = n if inside else n - pix_in.shape[0]
+            pix = pix_in[m] if inside else pix_out[m]
+            t = t_in[m] if inside else t_out[m]
+            f = face_in[m] if inside else face_out[m]
+            x, y = pix % width, (pix // width) % height
+            px, py = float(x), float(y)
+            if inside:
+                _inside_bary(uv, depth, faces[f], t, px, py, raw, bary)
+                alpha[t, y, x] = 1.0
+            else:
+                _, _, _, _, _, dx, dy, _, _ = _band_bary(
+                    uv, depth, ends[m, 0], ends[m, 1], slots[m, 0], slots[m, 1], t, px, py, bary
+                )
+                alpha[t, y, x] = math.exp(-sigma_unit * (dx * dx + dy * dy))
+            s, tt = _texcoords(bary, face_uv, f)
+            _, _, x0, y0, wx, wy, _, _ = _sample(texture, s, tt)
+            for c in range(3):
+                v00, v01 = _texel(texture, c, y0, x0), _texel(texture, c, y0, x0 + 1)
+                v10, v11 = _texel(texture, c, y0 + 1, x0), _texel(texture, c, y0 + 1, x0 + 1)
+                colour = _bilinear(v00, v01, v10, v11, wx, wy)
+                if blur:
+                    # I = mean_t(F_t A_t) + (1 - mean_t A_t) B, one listed pixel at a time.
+                    out[0, c, y, x] += alpha[t, y, x] * (colour - background[c, y, x]) / num_t
+                else:
+                    out[t, c, y, x] = colour
+    if blur:
+        for chunk in range(CHUNKS):
+            rgb += parts[chunk]
 
 
 def _backward(
@@ -438,44 +254,126 @@ def _backward(
     grad_depth: np.ndarray,
     grad_texture: np.ndarray,
 ) -> None:
-    """:func:`_backward_range` over all listed pixels on ``CHUNKS`` threads, each into its own
-    gradients, summed in a fixed order."""
-    n = pix_in.shape[0] + pix_out.shape[0]
-    g_uv = np.zeros((CHUNKS, grad_uv.shape[0], grad_uv.shape[1], 2), dtype=grad_uv.dtype)
-    g_depth = np.zeros((CHUNKS, grad_depth.shape[0], grad_depth.shape[1]), dtype=grad_depth.dtype)
-    g_texture = np.zeros((CHUNKS, 3, grad_texture.shape[1], grad_texture.shape[2]), dtype=grad_texture.dtype)
+    """Add the gradients of the listed pixels' colour and coverage to ``grad_uv`` (T, V, 2),
+    ``grad_depth`` (T, V) and ``grad_texture`` (3, Ht, Wt); ``grad_rgb`` is that of the renders
+    (T, 3, H, W), or with ``blur`` of the blurred image (1, 3, H, W). The list runs in
+    ``CHUNKS`` parts on numba's threads, each pixel by pixel in list order into gradients of
+    its own, which are added up in part order."""
+    height, width = alpha.shape[1], alpha.shape[2]
+    num_t = alpha.shape[0]
+    n_listed = pix_in.shape[0] + pix_out.shape[0]
+    parts_uv = np.zeros((CHUNKS, grad_uv.shape[0], grad_uv.shape[1], 2), dtype=grad_uv.dtype)
+    parts_depth = np.zeros((CHUNKS, grad_depth.shape[0], grad_depth.shape[1]), dtype=grad_depth.dtype)
+    parts_texture = np.zeros((CHUNKS, 3, grad_texture.shape[1], grad_texture.shape[2]), dtype=grad_texture.dtype)
     for chunk in prange(CHUNKS):
-        lo, hi = _chunk(n, CHUNKS, chunk)
-        _backward_range(
-            lo,
-            hi,
-            uv,
-            depth,
-            texture,
-            faces,
-            face_uv,
-            pix_in,
-            t_in,
-            face_in,
-            pix_out,
-            t_out,
-            ends,
-            face_out,
-            slots,
-            sigma_unit,
-            background,
-            blur,
-            alpha,
-            grad_rgb,
-            grad_alpha,
-            g_uv[chunk],
-            g_depth[chunk],
-            g_texture[chunk],
-        )
+        lo, hi = _chunk(n_listed, CHUNKS, chunk)
+        part_uv, part_depth, part_texture = parts_uv[chunk], parts_depth[chunk], parts_texture[chunk]
+        raw = np.empty(3, dtype=np.float64)
+        bary = np.empty(3, dtype=np.float64)
+        g_bary = np.empty(3, dtype=np.float64)
+        for n in range(lo, hi):
+            # Spelled out in both passes: as an inlined helper returning this tuple it made the
+            # passes 1.5x slower (measured at the paper's setting).
+            inside = n < pix_in.shape[0]
+            m = n if inside else n - pix_in.shape[0]
+            pix = pix_in[m] if inside else pix_out[m]
+            t = t_in[m] if inside else t_out[m]
+            f = face_in[m] if inside else face_out[m]
+            x, y = pix % width, (pix // width) % height
+            px, py = float(x), float(y)
+            # The forward pass again, keeping what the derivatives need.
+            ax = ay = abx = aby = lam = dx = dy = v0 = v1 = total = 0.0
+            a = b = 0
+            if inside:
+                total = _inside_bary(uv, depth, faces[f], t, px, py, raw, bary)
+            else:
+                a, b = ends[m, 0], ends[m, 1]
+                ax, ay, abx, aby, lam, dx, dy, v0, v1 = _band_bary(
+                    uv, depth, a, b, slots[m, 0], slots[m, 1], t, px, py, bary
+                )
+            s, tt = _texcoords(bary, face_uv, f)
+            _, _, x0, y0, wx, wy, ds, dt = _sample(texture, s, tt)
+
+            # Texture sampling: into the four texels, and into (s, t).
+            g_ix = g_iy = 0.0
+            g_alpha = grad_alpha[t, y, x]
+            for c in range(3):
+                v00, v01 = _texel(texture, c, y0, x0), _texel(texture, c, y0, x0 + 1)
+                v10, v11 = _texel(texture, c, y0 + 1, x0), _texel(texture, c, y0 + 1, x0 + 1)
+                if blur:
+                    colour = _bilinear(v00, v01, v10, v11, wx, wy)
+                    g_alpha += grad_rgb[0, c, y, x] * (colour - background[c, y, x]) / num_t
+                    g = grad_rgb[0, c, y, x] * alpha[t, y, x] / num_t
+                else:
+                    g = grad_rgb[t, c, y, x]
+                if g == 0.0:
+                    continue
+                g_ix += g * ((1 - wy) * (v01 - v00) + wy * (v11 - v10))
+                g_iy += g * ((1 - wx) * (v10 - v00) + wx * (v11 - v01))
+                _add_texel(part_texture, c, y0, x0, g * (1 - wx) * (1 - wy))
+                _add_texel(part_texture, c, y0, x0 + 1, g * wx * (1 - wy))
+                _add_texel(part_texture, c, y0 + 1, x0, g * (1 - wx) * wy)
+                _add_texel(part_texture, c, y0 + 1, x0 + 1, g * wx * wy)
+            g_s, g_t = g_ix * ds, g_iy * dt
+            for i in range(3):
+                g_bary[i] = g_s * face_uv[f, i, 0] + g_t * face_uv[f, i, 1]
+
+            if inside:
+                corners = faces[f]
+                dot = g_bary[0] * bary[0] + g_bary[1] * bary[1] + g_bary[2] * bary[2]
+                ox, oy = uv[t, corners[0], 0], uv[t, corners[0], 1]
+                du, dv = px - ox, py - oy
+                for i in range(3):
+                    g_raw = (g_bary[i] - dot) / total
+                    z = depth[t, corners[i]]
+                    part_depth[t, corners[i]] -= g_raw * raw[i] / z
+                    g_m = g_raw / z
+                    # m_i is the cross product (q - p) x (r - p): the first corner (the origin)
+                    # cancels out of it, so only the next two corners get its gradient.
+                    j, k = corners[(i + 1) % 3], corners[(i + 2) % 3]
+                    qx, qy = uv[t, j, 0] - ox, uv[t, j, 1] - oy
+                    rx, ry = uv[t, k, 0] - ox, uv[t, k, 1] - oy
+                    part_uv[t, j, 0] += g_m * (ry - dv)
+                    part_uv[t, j, 1] += g_m * (du - rx)
+                    part_uv[t, k, 0] += g_m * (dv - qy)
+                    part_uv[t, k, 1] += g_m * (qx - du)
+            else:
+                # Edge weights w_k = v_k / (v0 + v1), v0 = (1 - lam) / z_a, v1 = lam / z_b.
+                g_w0, g_w1 = g_bary[slots[m, 0]], g_bary[slots[m, 1]]
+                total = v0 + v1
+                dot = (g_w0 * v0 + g_w1 * v1) / total
+                g_v0, g_v1 = (g_w0 - dot) / total, (g_w1 - dot) / total
+                z_a, z_b = depth[t, a], depth[t, b]
+                part_depth[t, a] -= g_v0 * v0 / z_a
+                part_depth[t, b] -= g_v1 * v1 / z_b
+                g_lam = -g_v0 / z_a + g_v1 / z_b
+                # alpha = exp(-sigma_unit * d2), d = p - (a + lam ab).
+                g_d2 = -g_alpha * alpha[t, y, x] * sigma_unit
+                g_cx, g_cy = -2.0 * dx * g_d2, -2.0 * dy * g_d2
+                g_ax, g_ay = g_cx, g_cy
+                g_abx, g_aby = lam * g_cx, lam * g_cy
+                g_lam += g_cx * abx + g_cy * aby
+                length2 = abx * abx + aby * aby
+                raw_lam = ((px - ax) * abx + (py - ay) * aby) / max(length2, 1e-20)
+                if 0.0 <= raw_lam <= 1.0:
+                    denominator = max(length2, 1e-20)
+                    g_num = g_lam / denominator
+                    g_ax -= g_num * abx
+                    g_ay -= g_num * aby
+                    g_abx += g_num * (px - ax)
+                    g_aby += g_num * (py - ay)
+                    if length2 >= 1e-20:
+                        g_den = -g_lam * raw_lam / denominator
+                        g_abx += 2.0 * g_den * abx
+                        g_aby += 2.0 * g_den * aby
+                part_uv[t, a, 0] += g_ax - g_abx
+                part_uv[t, a, 1] += g_ay - g_aby
+                part_uv[t, b, 0] += g_abx
+                part_uv[t, b, 1] += g_aby
     for chunk in range(CHUNKS):
-        grad_uv += g_uv[chunk]
-        grad_depth += g_depth[chunk]
-        grad_texture += g_texture[chunk]
+        grad_uv += parts_uv[chunk]
+        grad_depth += parts_depth[chunk]
+        grad_texture += parts_texture[chunk]
 
 
 def _swept_forward(alpha: np.ndarray, out: np.ndarray) -> None:
@@ -518,8 +416,6 @@ if kernels.njit is not None:
     _band_bary = kernels.compile_kernel(_band_bary, inline=True)
     _texcoords = kernels.compile_kernel(_texcoords, inline=True)
     _bilinear = kernels.compile_kernel(_bilinear, inline=True)
-    _forward_range = kernels.compile_kernel(_forward_range, inline=True)
-    _backward_range = kernels.compile_kernel(_backward_range, inline=True)
     _chunk = kernels.compile_kernel(_chunk, inline=True)
     _forward = kernels.compile_kernel(_forward, parallel=True)
     _backward = kernels.compile_kernel(_backward, parallel=True)
