@@ -13,7 +13,7 @@ import torch
 from sfb_video.config import load_config
 from sfb_video.crop import make_crop
 from sfb_video.evaluation.synthetic import score_state
-from sfb_video.fitter import FitResult, fit_frame
+from sfb_video.fitter import fit_frame
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.joint import JointResult, Seed, WindowFrame, fit_window, measured_exposure
 from sfb_video.model.motion import Motion
@@ -136,20 +136,11 @@ def test_the_joint_loss_ends_below_its_start(joint: tuple[JointResult, list[Seed
     assert result.prototype == "sphere" and result.trials == {}
 
 
-@pytest.fixture(scope="module")
-def searched(clip: SyntheticClip) -> tuple[list[FitResult], JointResult]:
-    """Single-frame fits of the clip's frames, and the joint fit (with the spin search) seeded
-    from them."""
+def test_the_spin_search_recovers_the_rotation_where_single_frames_do_not(clip: SyntheticClip) -> None:
     frames = _frames(clip)
     singles = [fit_frame(f.crop, SPIN.fit, SPIN.render) for f in frames]
     seeds = [Seed(f.index, r.state, r.prototype, r.losses["image"]) for f, r in zip(frames, singles, strict=True)]
-    return singles, fit_window(frames, seeds, clip.camera, SPIN.fit, SPIN.joint, SPIN.render, 0.4)
-
-
-def test_the_spin_search_recovers_the_rotation_where_single_frames_do_not(
-    clip: SyntheticClip, searched: tuple[list[FitResult], JointResult]
-) -> None:
-    singles, result = searched
+    result = fit_window(frames, seeds, clip.camera, SPIN.fit, SPIN.joint, SPIN.render, 0.4)
     single = _score(clip, [r.state for r in singles], "rotation_err_deg")
     joint = _score(clip, [result.state(i) for i in range(4)], "rotation_err_deg")
     assert set(result.trials) == {"seed:sphere", "spin:sphere"}
