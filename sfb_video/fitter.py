@@ -80,12 +80,12 @@ def _joint_loss(
 ) -> tuple[torch.Tensor, dict[str, float], torch.Tensor]:
     """The weighted loss at ``progress``, the fraction of the fit's iterations done (L_D fades)."""
     rotations, positions = motion(taus)
-    vertices = shape.vertices()
+    vertices, texture = shape.vertices(), shape.texture()
     posed = pose_vertices(vertices, rotations, positions)
-    rendered, alpha = renderer.blurred(posed, shape.topology, shape.texture(), crop.background)
+    rendered, alpha = renderer.blurred(posed, shape.topology, texture, crop.background)
     terms = {
         "image": losses.image_loss(crop.image, rendered, crop.object_mask),
-        "texture": losses.texture_tv(shape.texture()),
+        "texture": losses.texture_tv(texture),
         "laplacian": losses.laplacian(vertices, shape.topology.edges),
     }
     weights = {"image": config.w_image, "texture": config.w_texture, "laplacian": config.w_laplacian}

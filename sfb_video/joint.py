@@ -254,6 +254,7 @@ def _frame_loss(
     rotations: torch.Tensor,
     positions: torch.Tensor,
     vertices: torch.Tensor,
+    texture: torch.Tensor,
     shape: ShapeParams,
     renderer: MeshRenderer,
     config: FitConfig,
@@ -261,7 +262,7 @@ def _frame_loss(
 ) -> tuple[torch.Tensor, dict[str, float]]:
     crop = frame.crop
     posed = pose_vertices(vertices, rotations, positions)
-    rendered, alpha = renderer.blurred(posed, shape.topology, shape.texture(), crop.background)
+    rendered, alpha = renderer.blurred(posed, shape.topology, texture, crop.background)
     terms = {"image": losses.image_loss(crop.image, rendered, crop.object_mask)}
     weights = {"image": config.w_image}
     if frame.masks is not None:
@@ -314,17 +315,17 @@ class _WindowFit:
         for _ in range(steps):
             self.optimiser.zero_grad(set_to_none=True)
             rotations, positions = params(self.frame_times, self.taus)
-            vertices = shape.vertices()
+            vertices, texture = shape.vertices(), shape.texture()
             per_frame: dict[int, dict[str, float]] = {}
             frame_total = torch.zeros((), device=device)
             progress = self.step / self.config.iterations
             for k, frame in enumerate(self.frames):
                 total_k, record_k = _frame_loss(
-                    frame, rotations[k], positions[k], vertices, shape, self.renderers[k], fit_config, progress
+                    frame, rotations[k], positions[k], vertices, texture, shape, self.renderers[k], fit_config, progress
                 )
                 frame_total = frame_total + total_k
                 per_frame[frame.index] = record_k
-            texture_tv = losses.texture_tv(shape.texture())
+            texture_tv = losses.texture_tv(texture)
             laplacian = losses.laplacian(vertices, shape.topology.edges)
             total = frame_total / len(self.frames)
             total = total + fit_config.w_texture * texture_tv + fit_config.w_laplacian * laplacian

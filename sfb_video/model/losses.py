@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import torch
 
+from sfb_video.model.regularisers import laplacian, texture_tv
 from sfb_video.render.fused import swept
+
+__all__ = ["difference_loss", "image_loss", "laplacian", "silhouette_loss", "soft_iou", "texture_tv"]
 
 
 def image_loss(image: torch.Tensor, rendered: torch.Tensor, roi: torch.Tensor | None = None) -> torch.Tensor:
@@ -50,26 +53,3 @@ def silhouette_loss(masks: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
     n = masks.shape[0]
     grouped = alpha[:, 0].reshape(n, alpha.shape[0] // n, *alpha.shape[2:]).mean(1)
     return 1 - soft_iou(masks, grouped).mean()
-
-
-def texture_tv(texture: torch.Tensor) -> torch.Tensor:
-    """L_T: mean absolute difference between neighbouring texels in both directions (appendix, eq. 1)."""
-    return (texture[:, 1:] - texture[:, :-1]).abs().mean() + (texture[:, :, 1:] - texture[:, :, :-1]).abs().mean()
-
-
-def laplacian(vertices: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
-    """L_L: mean over vertices of ||v_i - mean of its neighbours||^2 (appendix, eq. 2).
-
-    The appendix sums over vertices; the mean keeps the paper's weight of 1000 independent of
-    the vertex count (about 1.2k for the default prototype).
-
-    Args:
-        vertices: (V, 3); edges: (E, 2) undirected vertex edges.
-    """
-    i, j = edges[:, 0], edges[:, 1]
-    total = torch.zeros_like(vertices).index_add(0, i, vertices[j]).index_add(0, j, vertices[i])
-    degree = torch.zeros(vertices.shape[0], device=vertices.device, dtype=vertices.dtype)
-    degree = degree.index_add(0, i, torch.ones_like(i, dtype=vertices.dtype)).index_add(
-        0, j, torch.ones_like(j, dtype=vertices.dtype)
-    )
-    return (vertices - total / degree[:, None].clamp_min(1)).square().sum(-1).mean()

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from sfb_video.geometry.camera import PinholeCamera
@@ -28,6 +29,7 @@ from sfb_video.geometry.rotation import (
     matrix_to_axis_angle,
     quaternion_to_matrix,
 )
+from sfb_video.model import complex_step as cs
 
 
 @dataclass(frozen=True)
@@ -167,10 +169,41 @@ class MotionParams(torch.nn.Module):
         return cap_rotation(self.omega_raw, self.max_angle)
 
     def forward(self, taus: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Rotations (T, 3, 3) and positions (T, 3) at exposure times ``taus`` (T,)."""
+        """Rotations (T, 3, 3) and positions (T, 3) at exposure times ``taus`` (T,).
+
+        On the CPU one autograd node (:mod:`~sfb_video.model.complex_step`); elsewhere the same
+        formulas as tensor operations, which stay on the device.
+        """
+        if self.ends.device.type == "cpu":
+            rotations, positions = cs.complex_step(self._chain(taus), (self.ends, self.quat0, self.omega_raw))
+            return rotations, positions
+        return self.tensor_forward(taus)
+
+    def tensor_forward(self, taus: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`forward` as tensor operations on any device (the reference for the CPU's node)."""
         ends = self.positions()
         rot0 = quaternion_to_matrix(self.quat0)
         return exposure_rotations(rot0, self.omega(), taus), ends[0] + taus[:, None] * (ends[1] - ends[0])
+
+    def _chain(self, taus: torch.Tensor) -> cs.Chain:
+        """:meth:`forward` as a complex-safe NumPy function of (B, 13) parameter vectors."""
+        cam, (lo, hi), log_ratio, max_angle = self.camera, self.size_range, self.log_ratio, self.max_angle
+        times = taus.detach().double().numpy()[None, :, None]
+
+        def chain(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            ends = theta[:, :6].reshape(-1, 2, 3)
+            ndc = np.tanh(ends[..., :2])
+            u = (ndc[..., 0] + 1) * cam.width / 2 - 0.5
+            v = (ndc[..., 1] + 1) * cam.height / 2 - 0.5
+            start_px = (lo + (hi - lo) / (1 + np.exp(-ends[:, 0, 2]))) * cam.height
+            diameter = np.stack((start_px, start_px * np.exp(log_ratio * np.tanh(ends[:, 1, 2]))), -1)
+            points = cs.unproject(u, v, cam.fy / diameter, cam.fx, cam.fy, cam.cx, cam.cy)
+            positions = points[:, :1] + times * (points[:, 1:] - points[:, :1])
+            rot0 = cs.quaternion_to_matrix(theta[:, 6:10])
+            omega = cs.cap_rotation(theta[:, 10:13], max_angle)
+            return cs.axis_angle_to_matrix(times * omega[:, None]) @ rot0[:, None], positions
+
+        return chain
 
     def _raw_position(self, uv: torch.Tensor) -> torch.Tensor:
         """Inverse of the tanh placement in :meth:`positions`: (*, 2) crop pixels -> (*, 2) raw."""
