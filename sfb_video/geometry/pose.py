@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import torch
 
+from sfb_video.geometry import compiled
+
 
 def pose_vertices(vertices: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor) -> torch.Tensor:
     """Rotate vertices about their centre of mass (the origin at unit scale), then translate.
@@ -16,4 +18,6 @@ def pose_vertices(vertices: torch.Tensor, rotations: torch.Tensor, translations:
     Returns:
         (T, V, 3) camera-space vertices.
     """
+    if vertices.dim() == 2 and compiled.serves(vertices, rotations, translations):
+        return compiled.pose_vertices(vertices, rotations, translations)
     return torch.einsum("tij,vj->tvi", rotations, vertices) + translations[:, None, :]

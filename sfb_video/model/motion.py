@@ -15,6 +15,7 @@ Convention:
 
 from __future__ import annotations
 
+import cmath
 import math
 from dataclasses import dataclass
 
@@ -30,6 +31,7 @@ from sfb_video.geometry.rotation import (
     quaternion_to_matrix,
 )
 from sfb_video.model import complex_step as cs
+from sfb_video.render import kernels
 
 
 @dataclass(frozen=True)
@@ -121,6 +123,51 @@ def cap_rotation(raw: torch.Tensor, max_angle: float) -> torch.Tensor:
     return raw * (max_angle * torch.tanh(norm / max_angle) / norm)
 
 
+def _exposure_chain(
+    theta: np.ndarray,
+    taus: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: float,
+    height: float,
+    lo: float,
+    hi: float,
+    log_ratio: float,
+    max_angle: float,
+    rotations: np.ndarray,
+    positions: np.ndarray,
+) -> None:
+    """:meth:`MotionParams.tensor_forward` for each row of (B, 13) complex parameters (ends,
+    quat0, omega_raw) into (B, T, 3, 3) rotations and (B, T, 3) positions, complex-safe."""
+    ends = np.empty((2, 3), dtype=np.complex128)
+    rot0 = np.empty((3, 3), dtype=np.complex128)
+    turn = np.empty((3, 3), dtype=np.complex128)
+    for b in range(theta.shape[0]):
+        start_px = (lo + (hi - lo) / (1 + cmath.exp(-theta[b, 2]))) * height
+        for e in range(2):
+            u = (cmath.tanh(theta[b, 3 * e]) + 1) * width / 2 - 0.5
+            v = (cmath.tanh(theta[b, 3 * e + 1]) + 1) * height / 2 - 0.5
+            diameter = start_px if e == 0 else start_px * cmath.exp(log_ratio * cmath.tanh(theta[b, 5]))
+            depth = fy / diameter
+            ends[e, 0], ends[e, 1], ends[e, 2] = (u - cx) / fx * depth, (v - cy) / fy * depth, depth
+        cs.rotation_from_quaternion(theta[b, 6], theta[b, 7], theta[b, 8], theta[b, 9], rot0)
+        ox, oy, oz = cs.cap_rotation(theta[b, 10], theta[b, 11], theta[b, 12], max_angle)
+        for t in range(taus.shape[0]):
+            tau = taus[t]
+            for i in range(3):
+                positions[b, t, i] = ends[0, i] + tau * (ends[1, i] - ends[0, i])
+            cs.rotation_from_axis_angle(tau * ox, tau * oy, tau * oz, turn)
+            for i in range(3):
+                for j in range(3):
+                    rotations[b, t, i, j] = turn[i, 0] * rot0[0, j] + turn[i, 1] * rot0[1, j] + turn[i, 2] * rot0[2, j]
+
+
+if kernels.njit is not None:
+    _exposure_chain = kernels.compile_kernel(_exposure_chain)
+
+
 class MotionParams(torch.nn.Module):
     """Learnable motion of one exposure, expressed in a crop camera.
 
@@ -174,7 +221,7 @@ class MotionParams(torch.nn.Module):
         On the CPU one autograd node (:mod:`~sfb_video.model.complex_step`); elsewhere the same
         formulas as tensor operations, which stay on the device.
         """
-        if self.ends.device.type == "cpu":
+        if self.ends.device.type == "cpu" and kernels.njit is not None:
             rotations, positions = cs.complex_step(self._chain(taus), (self.ends, self.quat0, self.omega_raw))
             return rotations, positions
         return self.tensor_forward(taus)
@@ -186,22 +233,16 @@ class MotionParams(torch.nn.Module):
         return exposure_rotations(rot0, self.omega(), taus), ends[0] + taus[:, None] * (ends[1] - ends[0])
 
     def _chain(self, taus: torch.Tensor) -> cs.Chain:
-        """:meth:`forward` as a complex-safe NumPy function of (B, 13) parameter vectors."""
-        cam, (lo, hi), log_ratio, max_angle = self.camera, self.size_range, self.log_ratio, self.max_angle
-        times = taus.detach().double().numpy()[None, :, None]
+        """:meth:`forward` as a compiled function of (B, 13) complex parameter vectors."""
+        cam, (lo, hi) = self.camera, self.size_range
+        times = taus.detach().double().numpy()
+        setting = (cam.fx, cam.fy, cam.cx, cam.cy, float(cam.width), float(cam.height), lo, hi, self.log_ratio)
 
         def chain(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            ends = theta[:, :6].reshape(-1, 2, 3)
-            ndc = np.tanh(ends[..., :2])
-            u = (ndc[..., 0] + 1) * cam.width / 2 - 0.5
-            v = (ndc[..., 1] + 1) * cam.height / 2 - 0.5
-            start_px = (lo + (hi - lo) / (1 + np.exp(-ends[:, 0, 2]))) * cam.height
-            diameter = np.stack((start_px, start_px * np.exp(log_ratio * np.tanh(ends[:, 1, 2]))), -1)
-            points = cs.unproject(u, v, cam.fy / diameter, cam.fx, cam.fy, cam.cx, cam.cy)
-            positions = points[:, :1] + times * (points[:, 1:] - points[:, :1])
-            rot0 = cs.quaternion_to_matrix(theta[:, 6:10])
-            omega = cs.cap_rotation(theta[:, 10:13], max_angle)
-            return cs.axis_angle_to_matrix(times * omega[:, None]) @ rot0[:, None], positions
+            rotations = np.empty((theta.shape[0], times.shape[0], 3, 3), dtype=np.complex128)
+            positions = np.empty((theta.shape[0], times.shape[0], 3), dtype=np.complex128)
+            _exposure_chain(theta, times, *setting, self.max_angle, rotations, positions)
+            return rotations, positions
 
         return chain
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import torch
 
+from sfb_video.geometry import compiled
 from sfb_video.geometry.mesh import MeshTopology, normalize_vertices
 
 
@@ -40,7 +41,8 @@ class ShapeParams(torch.nn.Module):
 
     def vertices(self) -> torch.Tensor:
         """(V, 3) current vertices at unit scale."""
-        return normalize_vertices(self.prototype + self.offsets)
+        raw = self.prototype + self.offsets
+        return compiled.normalize_vertices(raw) if compiled.serves(raw) else normalize_vertices(raw)
 
     def texture(self) -> torch.Tensor:
         """(3, Ht, Wt) current texture in [0, 1]."""

@@ -21,6 +21,7 @@ import torch
 
 from sfb_video.checks import check_in_front
 from sfb_video.config import RenderConfig
+from sfb_video.geometry import compiled
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology, check_vertices
 from sfb_video.render import kernels
@@ -238,7 +239,7 @@ def project_checked(
     check_vertices(vertices, topology)
     if vertices.dim() != 3:
         raise ValueError(f"vertices must have shape (T, V, 3), got {tuple(vertices.shape)}")
-    uv, depth = camera.project(vertices)
+    uv, depth = compiled.project(vertices, camera) if compiled.serves(vertices) else camera.project(vertices)
     check_in_front(depth.detach(), settings.near)
     return uv, depth, topology.to(vertices.device)
 

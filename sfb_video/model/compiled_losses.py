@@ -1,10 +1,10 @@
-"""The shape and texture regularisers L_L and L_T, compiled on the CPU.
+"""The loss terms as compiled CPU passes, with their derivatives written out.
 
-Each is a few lines of tensor operations (:func:`laplacian_tensors`, :func:`texture_tv_tensors`,
-the reference and the path on other devices), but autograd's graph of their gathers, scatters
-and slices cost ~2.5 ms of a ~20 ms fit step on two cores for microseconds of arithmetic. Here
-each is one compiled pass forward and one backward with the derivative written out; the tests
-check both against the tensor versions and finite differences.
+Each term is a few lines of tensor operations in :mod:`sfb_video.model.losses` (the formulas,
+and the path on other devices), but autograd's graph of their slices, gathers and reductions
+cost ~2.5 ms of a ~20 ms fit step on two cores for microseconds of arithmetic. Here each is one
+compiled pass forward and one backward; the tests check both against the tensor formulas and
+finite differences.
 """
 
 from __future__ import annotations
@@ -15,22 +15,6 @@ import numpy as np
 import torch
 
 from sfb_video.render import kernels
-
-
-def texture_tv_tensors(texture: torch.Tensor) -> torch.Tensor:
-    """L_T of a (3, Ht, Wt) texture as tensor operations (see :func:`texture_tv`)."""
-    return (texture[:, 1:] - texture[:, :-1]).abs().mean() + (texture[:, :, 1:] - texture[:, :, :-1]).abs().mean()
-
-
-def laplacian_tensors(vertices: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
-    """L_L of (V, 3) vertices over (E, 2) edges as tensor operations (see :func:`laplacian`)."""
-    i, j = edges[:, 0], edges[:, 1]
-    total = torch.zeros_like(vertices).index_add(0, i, vertices[j]).index_add(0, j, vertices[i])
-    degree = torch.zeros(vertices.shape[0], device=vertices.device, dtype=vertices.dtype)
-    degree = degree.index_add(0, i, torch.ones_like(i, dtype=vertices.dtype)).index_add(
-        0, j, torch.ones_like(j, dtype=vertices.dtype)
-    )
-    return (vertices - total / degree[:, None].clamp_min(1)).square().sum(-1).mean()
 
 
 def _tv_forward(texture: np.ndarray) -> float:
@@ -98,7 +82,30 @@ def _laplacian_backward(lap: np.ndarray, inverse: np.ndarray, edges: np.ndarray,
             out[j, c] -= scale * lap[i, c] * inverse[i]
 
 
+def _iou_forward(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    inter, union = 0.0, 0.0
+    for y in range(a.shape[0]):
+        for x in range(a.shape[1]):
+            ab = a[y, x] * b[y, x]
+            inter += ab
+            union += a[y, x] + b[y, x] - ab
+    return inter, union
+
+
+def _iou_backward(a: np.ndarray, inter: float, union: float, grad: float, out: np.ndarray) -> None:
+    # d(I / U)/db = (a U - I (1 - a)) / U^2; below the floor U is a constant (clamp_min's derivative).
+    floor = union < 1e-8
+    for y in range(a.shape[0]):
+        for x in range(a.shape[1]):
+            if floor:
+                out[y, x] = grad * a[y, x] / 1e-8
+            else:
+                out[y, x] = grad * (a[y, x] * union - inter * (1 - a[y, x])) / (union * union)
+
+
 if kernels.njit is not None:
+    _iou_forward = kernels.compile_kernel(_iou_forward)
+    _iou_backward = kernels.compile_kernel(_iou_backward)
     _tv_forward = kernels.compile_kernel(_tv_forward)
     _tv_backward = kernels.compile_kernel(_tv_backward)
     _laplacian_forward = kernels.compile_kernel(_laplacian_forward)
@@ -137,23 +144,40 @@ class _Laplacian(torch.autograd.Function):
         return out, None
 
 
-def _compiled(tensor: torch.Tensor) -> bool:
-    return kernels.njit is not None and tensor.device.type == "cpu" and tensor.dtype in (torch.float32, torch.float64)
+class _SoftIoU(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+        a, b = a.detach().contiguous(), b.detach().contiguous()
+        inter, union = _iou_forward(a.numpy(), b.numpy())
+        ctx.save_for_backward(a)
+        ctx.sums = inter, union
+        return torch.tensor(inter / max(union, 1e-8), dtype=b.dtype)
+
+    @staticmethod
+    def backward(ctx: Any, grad: torch.Tensor) -> tuple[None, torch.Tensor]:  # type: ignore[override]
+        (a,) = ctx.saved_tensors
+        out = torch.empty_like(a)
+        _iou_backward(a.numpy(), *ctx.sums, float(grad), out.numpy())
+        return None, out
+
+
+def serves(*tensors: torch.Tensor) -> bool:
+    """Whether the compiled passes serve these tensors: CPU, float32 or float64, with numba."""
+    return kernels.njit is not None and all(
+        t.device.type == "cpu" and t.dtype in (torch.float32, torch.float64) for t in tensors
+    )
 
 
 def texture_tv(texture: torch.Tensor) -> torch.Tensor:
-    """L_T: mean absolute difference between neighbouring texels in both directions (appendix,
-    eq. 1) of a (3, Ht, Wt) texture."""
-    return _TextureTV.apply(texture) if _compiled(texture) else texture_tv_tensors(texture)
+    """:func:`sfb_video.model.losses.texture_tv` of a (3, Ht, Wt) texture."""
+    return _TextureTV.apply(texture)
 
 
 def laplacian(vertices: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
-    """L_L: mean over vertices of ||v_i - mean of its neighbours||^2 (appendix, eq. 2).
+    """:func:`sfb_video.model.losses.laplacian` of (V, 3) vertices over (E, 2) edges."""
+    return _Laplacian.apply(vertices, edges)
 
-    The appendix sums over vertices; the mean keeps the paper's weight of 1000 independent of
-    the vertex count (about 1.2k for the default prototype).
 
-    Args:
-        vertices: (V, 3); edges: (E, 2) undirected vertex edges.
-    """
-    return _Laplacian.apply(vertices, edges) if _compiled(vertices) else laplacian_tensors(vertices, edges)
+def soft_iou(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """:func:`sfb_video.model.losses.soft_iou` of two (H, W) masks, differentiable in ``b`` only."""
+    return _SoftIoU.apply(a, b)
