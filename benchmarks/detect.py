@@ -1,0 +1,116 @@
+"""Detection against the truth on generated clips that reproduce real footage's failures.
+
+    python -m benchmarks.detect [--frames 8] [--config default] [--set KEY=VALUE ...]
+
+Each scenario is a generated 320x240 clip with ground truth (the tight box of every pixel the
+object touches during each exposure). Frames stream through the pipeline's own detection: the
+running-median background, the difference mask, the slow-mover test against the frames two
+before and two after, the blob choice without a prediction (as a track's first frame is found).
+A detection counts as found when its box overlaps the true box with IoU >= 0.5. Per scenario:
+recall (found / frames that show the object), precision (found / detections), the mean box
+IoU of the detections in frames that show the object. Targets (issue 19): recall and precision
+>= 0.95, mean box IoU >= 0.8.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import statistics
+
+import numpy as np
+import torch
+
+from sfb_video.config import Config, load_config
+from sfb_video.synth import ClipSpec, generate_clip
+from stages.background import running_median
+from stages.detect import choose_blob, moving_mask
+from stages.read import Frame
+from stages.track import with_neighbours
+
+BASE = ClipSpec(
+    width=320,
+    height=240,
+    num_frames=8,
+    exposure_fraction=0.8,
+    num_subframes=4,
+    sub_exposures=16,
+    texture_size=64,
+    size_px_range=(18.0, 24.0),
+    speed_range=(1.2, 1.6),
+)
+
+SCENARIOS: dict[str, dict] = {
+    "plain": {},
+    "faint (contrast 0.25)": {"contrast": 0.25},
+    "dark to bright": {"split_background": True},
+    "behind a fence": {"fence_period_px": 16},
+    "bounce": {"bounce_time": 3.9, "gravity": 0.05},
+    "large, slow for its size": {"size_px_range": (40.0, 44.0), "speed_range": (1.0, 1.1), "num_frames": 6},
+}
+"""Scenario name -> the fields that differ from :data:`BASE`."""
+
+
+def box_iou(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> float:
+    """IoU of two (x, y, w, h) pixel boxes."""
+    ix = max(0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    iy = max(0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    return inter / float(a[2] * a[3] + b[2] * b[3] - inter)
+
+
+def score_scenario(spec: ClipSpec, config: Config) -> dict[str, float]:
+    """Detect every frame of the clip ``spec`` makes; recall, precision and mean box IoU."""
+    clip = generate_clip(spec)
+    frames = (Frame(k, torch.from_numpy(np.ascontiguousarray(f.transpose(2, 0, 1)))) for k, f in enumerate(clip.frames))
+    stream = running_median(frames, config.video.background_window)
+    present = found = detections = 0
+    ious = []
+    for frame, mask, neighbours in with_neighbours(stream, config):
+        truth = clip.truth[frame.index]
+        detection = choose_blob(frame.index, moving_mask(mask, neighbours, config.detect), None, config.detect)
+        present += truth.present
+        detections += detection is not None
+        if truth.present and detection is not None:
+            iou = box_iou(detection.box, truth.bbox)
+            ious.append(iou)
+            found += iou >= 0.5
+    return {
+        "frames": len(clip.frames),
+        "present": present,
+        "detections": detections,
+        "recall": found / max(present, 1),
+        "precision": found / max(detections, 1),
+        "iou": statistics.fmean(ious) if ious else 0.0,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=BASE.num_frames)
+    parser.add_argument("--config", default="default")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    args = parser.parse_args()
+    config = load_config(args.config, args.set)
+    rows = []
+    for name, fields in SCENARIOS.items():
+        spec = dataclasses.replace(BASE, **({"num_frames": args.frames} | fields))
+        rows.append((name, score_scenario(spec, config)))
+    print(f"preset {args.config} {' '.join(args.set)}; 320x240 clips\n")
+    print("| scenario | frames | with object | detections | recall | precision | mean box IoU |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for name, r in rows:
+        print(
+            f"| {name} | {r['frames']} | {r['present']} | {r['detections']} | {r['recall']:.2f} | "
+            f"{r['precision']:.2f} | {r['iou']:.2f} |"
+        )
+    total = {k: sum(r[k] for _, r in rows) for k in ("present", "detections")}
+    mean = {k: statistics.fmean(r[k] for _, r in rows) for k in ("recall", "precision", "iou")}
+    print(
+        f"| **all** | {sum(r['frames'] for _, r in rows)} | {total['present']} | {total['detections']} | "
+        f"{mean['recall']:.2f} | {mean['precision']:.2f} | {mean['iou']:.2f} |"
+    )
+
+
+if __name__ == "__main__":
+    main()
