@@ -1,6 +1,6 @@
 """Warm start against cold starts on a generated clip: time and accuracy per frame, peak memory.
 
-    python -m benchmarks.video [--frames 8] [--config default] [--set KEY=VALUE ...]
+    python -m benchmarks.video [--frames 8] [--config default] [--set KEY=VALUE ...] [--device cpu]
 
 Generates a clip with ground truth (a textured ball, 320x240), processes it twice with the full
 pipeline, once warm-starting every frame of the track from the previous one (the default) and
@@ -36,7 +36,7 @@ VARIANTS = {
 }
 
 
-def run_variant(preset: str, overrides: list[str]) -> dict:
+def run_variant(preset: str, overrides: list[str], device: str = "cpu") -> dict:
     """Process the clip in a temporary folder; per-frame rows and this process's peak memory."""
     config = demo_config(load_config(preset, overrides))
     clip = demo_clip(config)
@@ -45,7 +45,7 @@ def run_variant(preset: str, overrides: list[str]) -> dict:
         write_clip_video(clip, video)
         # The difference image, as in the README's table, whatever DeFMO weights this machine has.
         options = ProcessOptions(video=video, out=out, masks="diff")
-        process_clip(options, config, torch.device("cpu"), quiet=True)
+        process_clip(options, config, torch.device(device), quiet=True)
         results = load_results(out)
         scores = score_run(out, clip, config)
     rows = [
@@ -72,19 +72,21 @@ def main() -> None:
     parser.add_argument("--config", default="default")
     parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     parser.add_argument("--child", choices=list(VARIANTS), help=argparse.SUPPRESS)
     args = parser.parse_args()
     overrides = [*args.set, f"demo.frames={args.frames}"]
     if args.child:
-        print(json.dumps(run_variant(args.config, [*overrides, *VARIANTS[args.child]])))
+        print(json.dumps(run_variant(args.config, [*overrides, *VARIANTS[args.child]], args.device)))
         return
     base = [sys.executable, "-m", "benchmarks.video", "--config", args.config, "--frames", str(args.frames)]
+    base += ["--device", args.device]
     base += [a for s in args.set for a in ("--set", s)]
     outcome = {}
     for name in VARIANTS:
         done = subprocess.run([*base, "--child", name], capture_output=True, text=True, check=True)
         outcome[name] = json.loads(done.stdout.strip().splitlines()[-1])
-    print(f"preset {args.config} {' '.join(overrides)}; one clip, each variant in its own process\n")
+    print(f"preset {args.config} {' '.join(overrides)} on {args.device}; one clip, each variant in its own process\n")
     print("| variant | frame | start | s | steps | TIoU | PSNR | transl. err |")
     print("|---|---:|---|---:|---:|---:|---:|---:|")
     for name, data in outcome.items():
