@@ -46,6 +46,7 @@ SCENARIOS: dict[str, dict] = {
     "dark to bright": {"split_background": True},
     "behind a fence": {"fence_period_px": 16},
     "bounce": {"bounce_time": 3.9, "gravity": 0.05},
+    "circular swing": {"swing_period": 6.0},
     "large, slow for its size": {"size_px_range": (40.0, 44.0), "speed_range": (1.0, 1.1), "num_frames": 6},
 }
 """Scenario name -> the fields that differ from :data:`BASE`."""

@@ -170,6 +170,7 @@ def write_scene_json(root: Path | str, scene: SyntheticScene, records: list[dict
             "angular_velocity": _array(traj.angular_velocity),
             "exposure_fraction": traj.exposure_fraction,
             "bounce_time": traj.bounce_time,
+            "swing": None if traj.swing is None else _array(traj.swing),
         },
         "frames": records,
     }
@@ -232,6 +233,7 @@ def load_clip(root: Path | str) -> SyntheticClip:
         _vec(tr["angular_velocity"]),
         float(tr["exposure_fraction"]),
         tr.get("bounce_time"),
+        None if tr.get("swing") is None else _vec(tr["swing"]),
     )
     mesh = read_obj(root / "gt", data["shape"])
     scene = SyntheticScene(spec, camera, mesh, read_png(root / "background.png"), data["background_name"], trajectory)

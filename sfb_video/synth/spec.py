@@ -65,6 +65,9 @@ class ClipSpec:
         bounce_time: clip time at which the object bounces off a floor (its velocity along
             image y reverses, keeping ``BOUNCE_RESTITUTION`` of it); None: no bounce. The object
             then moves down the image before it and up after.
+        swing_period: a circular swing parallel to the image plane, one turn in this many
+            frame intervals, instead of the straight (or falling, or bouncing) path; its radius
+            follows from the speed drawn from ``speed_range``. None: no swing.
         contrast: the object's texture is pulled towards the background's mean colour by this
             factor (1: as drawn; 0.2: a faint, low-contrast object).
         split_background: darken the left half of the background and brighten the right half,
@@ -101,6 +104,7 @@ class ClipSpec:
     margin_px: float = 2.0
     absent_frames: tuple[int, ...] = ()
     bounce_time: float | None = None
+    swing_period: float | None = None
     contrast: float = 1.0
     split_background: bool = False
     fence_period_px: int = 0
@@ -179,6 +183,8 @@ def _validate(spec: ClipSpec) -> None:
         raise ConfigError("min_streak and margin_px must be >= 0 and min_depth > 0")
     if spec.bounce_time is not None and not 0 < spec.bounce_time < spec.num_frames:
         raise ConfigError(f"bounce_time must lie in (0, {spec.num_frames}), got {spec.bounce_time}")
+    if spec.swing_period is not None and (spec.swing_period < 2 or spec.bounce_time is not None or spec.gravity):
+        raise ConfigError("swing_period must be at least 2 frames, and a swing has no bounce and no gravity")
     if not 0 <= spec.contrast <= 1:
         raise ConfigError(f"contrast must be in [0, 1], got {spec.contrast}")
     if spec.fence_period_px < 0 or 0 < spec.fence_period_px < 4:

@@ -5,7 +5,7 @@ Convention:
     exposure fraction, and exposure time tau in [0, 1] maps to t = k + tau * e.
     Position x(t) = p0 + v t + a t^2 / 2 (camera space, object sizes), and after a bounce at
     t_b the same from x(t_b) with the velocity's y reversed and scaled by
-    ``BOUNCE_RESTITUTION``; rotation
+    ``BOUNCE_RESTITUTION``; or, for a swing, a circle parallel to the image plane; rotation
     R(t) = exp(t w) @ R_init with w an axis-angle per frame interval. Frame k's ground truth is
     then x0 = x(k), dx = x(k + e) - x(k), R0 = R(k), omega = e * w, which matches
     ``geometry.rotation.exposure_rotations``: R(k + tau e) = exp(tau omega) @ R0.
@@ -14,6 +14,7 @@ Convention:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -99,6 +100,10 @@ class Trajectory:
         quaternion0: (4,) WXYZ R_init = R(0); angular_velocity: (3,) w, axis-angle per frame.
         exposure_fraction: e, the open-shutter fraction of each frame interval.
         bounce_time: t_b of a bounce (see the module docstring), or None.
+        swing: a circular swing instead of the free path, or None: (6,) the circle's centre
+            (3,), radius, angular rate (radians per frame interval) and phase at t = 0; the
+            circle lies parallel to the image plane, x(t) = c + r (cos(rate t + phase),
+            sin(rate t + phase), 0).
     """
 
     position0: np.ndarray
@@ -108,10 +113,15 @@ class Trajectory:
     angular_velocity: np.ndarray
     exposure_fraction: float
     bounce_time: float | None = None
+    swing: np.ndarray | None = None
 
     def positions(self, t: np.ndarray) -> np.ndarray:
         """(T,) clip times -> (T, 3) centres."""
         t = np.asarray(t, dtype=np.float64)[:, None]
+        if self.swing is not None:
+            centre, radius, rate, phase = self.swing[:3], self.swing[3], self.swing[4], self.swing[5]
+            angle = rate * t[:, 0] + phase
+            return centre + radius * np.stack((np.cos(angle), np.sin(angle), np.zeros_like(angle)), -1)
         free = self.position0 + self.velocity * t + 0.5 * self.acceleration * t**2
         if self.bounce_time is None:
             return free
@@ -201,6 +211,13 @@ def sample_trajectory(
         half = span / 2
         px_per_unit = f / z_near
         reach = radius * px_per_unit + spec.margin_px
+        if spec.swing_period is not None:
+            swung = _swing(
+                rng, spec, Trajectory(np.zeros(3), velocity, acceleration, quat0, spin, e), speed, z_mid, reach, camera
+            )
+            if swung is not None and _fits(swung, spec, vertices, camera, times, diameter):
+                return swung
+            continue
         half_u = abs(velocity[0]) * half * px_per_unit + reach
         half_v = (abs(velocity[1]) * half + 0.5 * abs(spec.gravity) * half**2) * px_per_unit + reach
         room_u, room_v = camera.width - 1 - 2 * half_u, camera.height - 1 - 2 * half_v
@@ -216,6 +233,29 @@ def sample_trajectory(
         f"no trajectory in {spec.max_tries} tries keeps the {spec.shape} in view for "
         f"{len(present)} frames: lower speed_range or size_px_range, or use fewer frames"
     )
+
+
+def _swing(
+    rng: np.random.Generator,
+    spec: ClipSpec,
+    traj: Trajectory,
+    speed: float,
+    depth: float,
+    reach: float,
+    camera: PinholeCamera,
+) -> Trajectory | None:
+    """``traj`` on a circle of ``spec.swing_period`` frames a turn at ``speed`` and ``depth``,
+    centred where the circle fits in view (None where it cannot)."""
+    rate = 2 * math.pi / float(spec.swing_period) * rng.choice([-1.0, 1.0])
+    radius = speed / abs(rate)
+    half = radius * camera.fy / depth + reach
+    room_u, room_v = camera.width - 1 - 2 * half, camera.height - 1 - 2 * half
+    if room_u < 0 or room_v < 0:
+        return None
+    u, v = half + rng.uniform() * room_u, half + rng.uniform() * room_v
+    centre = np.array([(u - camera.cx) / camera.fx * depth, (v - camera.cy) / camera.fy * depth, depth])
+    swing = np.array([*centre, radius, rate, rng.uniform(0, 2 * math.pi)])
+    return dataclasses.replace(traj, velocity=np.zeros(3), acceleration=np.zeros(3), swing=swing)
 
 
 def _fits(

@@ -208,6 +208,20 @@ def test_a_bounce_reverses_the_vertical_velocity_and_keeps_the_path_whole() -> N
     assert v_after[0] == pytest.approx(v_before[0], rel=1e-4)
 
 
+def test_a_swing_goes_round_a_circle_at_the_drawn_speed_and_closes_after_its_period() -> None:
+    spec = dataclasses.replace(SMALL, num_frames=4, swing_period=4.0, speed_range=(1.0, 1.2))
+    scene = make_scene(spec)
+    traj, diameter = scene.trajectory, 2 * float(np.linalg.norm(scene.mesh.vertices.numpy(), axis=-1).max())
+    t = np.linspace(0, 4, 41)
+    centre, radius = traj.swing[:3], traj.swing[3]
+    assert np.allclose(np.linalg.norm(traj.positions(t) - centre, axis=-1), radius)
+    assert np.allclose(traj.positions(np.array([0.5])), traj.positions(np.array([4.5])))
+    # The speed along the circle is the drawn one: 1.0-1.2 object sizes a frame's exposure.
+    per_exposure = radius * abs(traj.swing[4]) * spec.exposure_fraction / diameter
+    assert 1.0 - 1e-9 <= per_exposure <= 1.2 + 1e-9
+    assert np.allclose(traj.positions(np.array([0.0, 3.0]))[:, 2], centre[2])
+
+
 def test_a_fence_stands_in_front_of_the_background_and_the_object() -> None:
     spec = dataclasses.replace(SMALL, num_frames=1, fence_period_px=8)
     clip = generate_clip(spec)

@@ -70,6 +70,13 @@ def test_save_and_load_round_trip_exactly(tmp_path: Path) -> None:
     _assert_same_clip(load_clip(root), clip)
 
 
+def test_a_swing_round_trips(tmp_path: Path) -> None:
+    spec = dataclasses.replace(SPEC, absent_frames=(), swing_period=4.0, speed_range=(1.0, 1.1))
+    clip = generate_clip(spec)
+    assert clip.scene.trajectory.swing is not None
+    _assert_same_clip(load_clip(save_clip(clip, tmp_path / "clip")), clip)
+
+
 def test_streaming_writer_matches_the_in_memory_clip(tmp_path: Path) -> None:
     root = write_clip(SPEC, tmp_path / "streamed")
     _assert_same_clip(load_clip(root), generate_clip(SPEC))
