@@ -179,13 +179,6 @@ class _Project(torch.autograd.Function):
         return out, None
 
 
-def serves(*tensors: torch.Tensor) -> bool:
-    """Whether the compiled passes serve these tensors: CPU, float32 or float64, with numba."""
-    return kernels.njit is not None and all(
-        t.device.type == "cpu" and t.dtype in (torch.float32, torch.float64) for t in tensors
-    )
-
-
 def normalize_vertices(vertices: torch.Tensor) -> torch.Tensor:
     """:func:`~sfb_video.geometry.mesh.normalize_vertices` of (V, 3) vertices."""
     return _Normalize.apply(vertices)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 
 from sfb_video.geometry import compiled
+from sfb_video.render import kernels
 
 
 def pose_vertices(vertices: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor) -> torch.Tensor:
@@ -18,6 +19,6 @@ def pose_vertices(vertices: torch.Tensor, rotations: torch.Tensor, translations:
     Returns:
         (T, V, 3) camera-space vertices.
     """
-    if vertices.dim() == 2 and compiled.serves(vertices, rotations, translations):
+    if vertices.dim() == 2 and kernels.serves(vertices, rotations, translations):
         return compiled.pose_vertices(vertices, rotations, translations)
     return torch.einsum("tij,vj->tvi", rotations, vertices) + translations[:, None, :]

@@ -161,13 +161,6 @@ class _SoftIoU(torch.autograd.Function):
         return None, out
 
 
-def serves(*tensors: torch.Tensor) -> bool:
-    """Whether the compiled passes serve these tensors: CPU, float32 or float64, with numba."""
-    return kernels.njit is not None and all(
-        t.device.type == "cpu" and t.dtype in (torch.float32, torch.float64) for t in tensors
-    )
-
-
 def texture_tv(texture: torch.Tensor) -> torch.Tensor:
     """:func:`sfb_video.model.losses.texture_tv` of a (3, Ht, Wt) texture."""
     return _TextureTV.apply(texture)

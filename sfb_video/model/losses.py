@@ -12,6 +12,7 @@ from __future__ import annotations
 import torch
 
 from sfb_video.model import compiled_losses as compiled
+from sfb_video.render import kernels
 from sfb_video.render.fused import swept
 
 
@@ -41,7 +42,7 @@ def difference_loss(mask: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
     mean itself would reward a static opaque blob over a streak, whose mean coverage is low.)
     """
     region = swept(alpha[:, 0])
-    if compiled.serves(mask, region):
+    if kernels.serves(mask, region):
         return 1 - compiled.soft_iou(mask.to(region.dtype), region)
     return 1 - soft_iou(mask, region)
 
@@ -62,7 +63,7 @@ def silhouette_loss(masks: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
 def texture_tv(texture: torch.Tensor) -> torch.Tensor:
     """L_T: mean absolute difference between neighbouring texels in both directions (appendix,
     eq. 1) of a (3, Ht, Wt) texture."""
-    if compiled.serves(texture):
+    if kernels.serves(texture):
         return compiled.texture_tv(texture)
     return (texture[:, 1:] - texture[:, :-1]).abs().mean() + (texture[:, :, 1:] - texture[:, :, :-1]).abs().mean()
 
@@ -76,7 +77,7 @@ def laplacian(vertices: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
     Args:
         vertices: (V, 3); edges: (E, 2) undirected vertex edges.
     """
-    if compiled.serves(vertices):
+    if kernels.serves(vertices):
         return compiled.laplacian(vertices, edges)
     i, j = edges[:, 0], edges[:, 1]
     total = torch.zeros_like(vertices).index_add(0, i, vertices[j]).index_add(0, j, vertices[i])

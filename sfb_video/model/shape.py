@@ -11,6 +11,7 @@ import torch
 
 from sfb_video.geometry import compiled
 from sfb_video.geometry.mesh import MeshTopology, normalize_vertices
+from sfb_video.render import kernels
 
 
 class ShapeParams(torch.nn.Module):
@@ -42,7 +43,7 @@ class ShapeParams(torch.nn.Module):
     def vertices(self) -> torch.Tensor:
         """(V, 3) current vertices at unit scale."""
         raw = self.prototype + self.offsets
-        return compiled.normalize_vertices(raw) if compiled.serves(raw) else normalize_vertices(raw)
+        return compiled.normalize_vertices(raw) if kernels.serves(raw) else normalize_vertices(raw)
 
     def texture(self) -> torch.Tensor:
         """(3, Ht, Wt) current texture in [0, 1]."""

@@ -50,13 +50,7 @@ _Lists = tuple[np.ndarray, ...]
 
 def available(uv: torch.Tensor, texture: torch.Tensor) -> bool:
     """Whether the compiled passes serve these tensors: CPU, float32 or float64, with numba."""
-    return (
-        kernels.njit is not None
-        and uv.device.type == "cpu"
-        and texture.device.type == "cpu"
-        and uv.dtype in (torch.float32, torch.float64)
-        and texture.dtype == uv.dtype
-    )
+    return kernels.serves(uv, texture) and texture.dtype == uv.dtype
 
 
 def _sample(texture: np.ndarray, s: float, t: float) -> tuple[float, float, int, int, float, float, float, float]:

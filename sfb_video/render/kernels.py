@@ -38,6 +38,14 @@ def available(points: torch.Tensor) -> bool:
     return njit is not None and points.device.type == "cpu" and points.dtype == torch.float32
 
 
+def serves(*tensors: torch.Tensor) -> bool:
+    """Whether compiled passes that take float32 and float64 serve ``tensors``: all on the
+    CPU, in one of those two types, with numba."""
+    return njit is not None and all(
+        t.device.type == "cpu" and t.dtype in (torch.float32, torch.float64) for t in tensors
+    )
+
+
 def _nearest_faces(
     uv: np.ndarray, depth: np.ndarray, faces: np.ndarray, closed: bool, min_area: float, height: int, width: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -239,7 +239,7 @@ def project_checked(
     check_vertices(vertices, topology)
     if vertices.dim() != 3:
         raise ValueError(f"vertices must have shape (T, V, 3), got {tuple(vertices.shape)}")
-    uv, depth = compiled.project(vertices, camera) if compiled.serves(vertices) else camera.project(vertices)
+    uv, depth = compiled.project(vertices, camera) if kernels.serves(vertices) else camera.project(vertices)
     check_in_front(depth.detach(), settings.near)
     return uv, depth, topology.to(vertices.device)
 

@@ -4,7 +4,8 @@ import pytest
 import torch
 
 from sfb_video.geometry.prototypes import load_prototype
-from sfb_video.model import compiled_losses, losses
+from sfb_video.model import losses
+from sfb_video.render import kernels
 
 
 def _noisy_sphere(dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
@@ -32,7 +33,7 @@ def _terms(dtype: torch.dtype) -> list[tuple[str, Callable[[torch.Tensor], torch
 def test_the_compiled_term_matches_finite_differences(index: int) -> None:
     _, term, x = _terms(torch.float64)[index]
     x = x + 1e-3 * torch.rand(x.shape, dtype=x.dtype, generator=torch.Generator().manual_seed(3))  # no ties
-    assert compiled_losses.serves(x)
+    assert kernels.serves(x)
     assert torch.autograd.gradcheck(term, (x.requires_grad_(),))
 
 
@@ -42,7 +43,7 @@ def test_the_compiled_terms_match_the_tensor_formulas(dtype: torch.dtype, monkey
     results: list[list[tuple[torch.Tensor, torch.Tensor]]] = [[], []]
     for compiled in (True, False):
         if not compiled:
-            monkeypatch.setattr(compiled_losses, "serves", lambda *tensors: False)
+            monkeypatch.setattr(kernels, "serves", lambda *tensors: False)
         for _, term, x in _terms(dtype):
             x = x.clone().requires_grad_()
             value = term(x)
