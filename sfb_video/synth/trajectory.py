@@ -14,7 +14,6 @@ Convention:
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -212,9 +211,9 @@ def sample_trajectory(
         px_per_unit = f / z_near
         reach = radius * px_per_unit + spec.margin_px
         if spec.swing_period is not None:
-            swung = _swing(
-                rng, spec, Trajectory(np.zeros(3), velocity, acceleration, quat0, spin, e), speed, z_mid, reach, camera
-            )
+            swing = _swing(rng, spec, speed, z_mid, reach, camera)
+            still = np.zeros(3)
+            swung = None if swing is None else Trajectory(still, still, still, quat0, spin, e, swing=swing)
             if swung is not None and _fits(swung, spec, vertices, camera, times, diameter):
                 return swung
             continue
@@ -238,14 +237,13 @@ def sample_trajectory(
 def _swing(
     rng: np.random.Generator,
     spec: ClipSpec,
-    traj: Trajectory,
     speed: float,
     depth: float,
     reach: float,
     camera: PinholeCamera,
-) -> Trajectory | None:
-    """``traj`` on a circle of ``spec.swing_period`` frames a turn at ``speed`` and ``depth``,
-    centred where the circle fits in view (None where it cannot)."""
+) -> np.ndarray | None:
+    """:attr:`Trajectory.swing` of a circle of ``spec.swing_period`` frames a turn at ``speed``
+    and ``depth``, centred where it fits in view (None where it cannot)."""
     rate = 2 * math.pi / float(spec.swing_period) * rng.choice([-1.0, 1.0])
     radius = speed / abs(rate)
     half = radius * camera.fy / depth + reach
@@ -254,8 +252,7 @@ def _swing(
         return None
     u, v = half + rng.uniform() * room_u, half + rng.uniform() * room_v
     centre = np.array([(u - camera.cx) / camera.fx * depth, (v - camera.cy) / camera.fy * depth, depth])
-    swing = np.array([*centre, radius, rate, rng.uniform(0, 2 * math.pi)])
-    return dataclasses.replace(traj, velocity=np.zeros(3), acceleration=np.zeros(3), swing=swing)
+    return np.array([*centre, radius, rate, rng.uniform(0, 2 * math.pi)])
 
 
 def _fits(
