@@ -291,8 +291,18 @@ class DetectConfig(_Checked):
     threshold: float = bounded(0.1, gt=0, le=math.sqrt(3))
     """||I - B||_2 over RGB (in [0, 1]) above this marks a pixel as differing from the
     background (the paper's D). Not the fit's object region (``crop.region_threshold``)."""
+    weak_threshold: float = bounded(0.04, gt=0, le=math.sqrt(3))
+    """Hysteresis: pixels differing by more than this (or ``weak_noise`` times the frame's
+    median difference, whichever is larger, up to ``threshold``) are kept where they connect to
+    pixels above ``threshold``, so the faint half of a streak stays with its strong half."""
+    weak_noise: float = bounded(4.0, ge=0)
+    """See ``weak_threshold``: the multiple of the frame's median difference (its noise level)
+    below which no pixel is kept."""
     open_px: int = bounded(3, ge=1)
     """Side of the square that opens the difference mask, removing specks of noise (1: none)."""
+    merge_px: int = bounded(3, ge=0)
+    """Fragments of the moving mask less than twice this apart count as one blob (a streak cut
+    by a fence's bars or by a background of its own colour)."""
     min_area_px: int = bounded(20, ge=1)
     """Blobs smaller than this are noise."""
     min_fill: float = bounded(0.3, ge=0, le=1)

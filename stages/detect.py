@@ -62,19 +62,54 @@ float temporaries stay small for any frame size."""
 
 
 @timed("detect")
-def difference_mask(image: torch.Tensor, background: torch.Tensor, config: DetectConfig) -> torch.Tensor:
-    """(H, W) bool: ||I - B||_2 > threshold over RGB, opened by an ``open_px`` square.
+def difference_image(image: torch.Tensor, background: torch.Tensor) -> np.ndarray:
+    """(H, W) float32 ||I - B||_2 over RGB (the paper's D before its threshold).
 
     Args:
         image, background: (3, H, W), each uint8 or float32 in [0, 1] (as frames are kept).
     """
     height, width = image.shape[1:]
-    out = torch.empty(height, width, dtype=torch.bool)
+    difference = np.empty((height, width), dtype=np.float32)
     rows = max(1, DIFFERENCE_BAND_VALUES // (3 * width))
     for top in range(0, height, rows):
         band = as_float(image[:, top : top + rows]) - as_float(background[:, top : top + rows])
-        out[top : top + rows] = (band.norm(dim=0) > config.threshold).cpu()
-    return _opened(out.numpy(), config)
+        difference[top : top + rows] = band.norm(dim=0).cpu().numpy()
+    return difference
+
+
+def weak_level(difference: np.ndarray, config: DetectConfig) -> float:
+    """The hysteresis's lower threshold for a frame's ``difference`` (H, W): ``weak_noise``
+    times its noise level, at least ``weak_threshold`` and at most ``threshold``."""
+    height, width = difference.shape
+    # Most pixels show only noise, so the median difference is the noise level.
+    noise = float(np.median(difference[:: max(1, height // 256), :: max(1, width // 256)]))
+    return min(config.threshold, max(config.weak_threshold, config.weak_noise * noise))
+
+
+def hysteresis(difference: np.ndarray, strong: np.ndarray, level: float) -> np.ndarray:
+    """(H, W) bool: the 8-connected regions of ``difference`` > ``level`` that hold a pixel of
+    ``strong`` (H, W) bool."""
+    if not strong.any():
+        return np.zeros_like(strong)
+    _, labels = cv2.connectedComponents((difference > level).astype(np.uint8), connectivity=8)
+    keep = np.zeros(int(labels.max()) + 1, dtype=bool)
+    keep[labels[strong]] = True
+    keep[0] = False
+    return keep[labels]
+
+
+@timed("detect")
+def difference_mask(image: torch.Tensor, background: torch.Tensor, config: DetectConfig) -> torch.Tensor:
+    """(H, W) bool: ||I - B||_2 > threshold over RGB, with the weaker differences connected to
+    those kept too (:func:`hysteresis` down to :func:`weak_level`), opened by an ``open_px``
+    square.
+
+    Args:
+        image, background: (3, H, W), each uint8 or float32 in [0, 1] (as frames are kept).
+    """
+    difference = difference_image(image, background)
+    strong = difference > config.threshold
+    return _opened(hysteresis(difference, strong, weak_level(difference, config)), config)
 
 
 @timed("detect")
@@ -108,6 +143,37 @@ def detect(
     return choose_blob(index, moving_mask(mask, neighbours, config), prediction, config)
 
 
+def blobs(mask: np.ndarray, merge_px: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """The blobs of a (H, W) bool ``mask``, fragments less than ``2 * merge_px`` apart joined
+    into one (a streak cut by a fence's bars, or split where it crosses a background of its
+    own colour).
+
+    Returns:
+        as :func:`cv2.connectedComponentsWithStats`: the number of labels (0 is the
+        background), (H, W) int32 labels of the mask's own pixels, (count, 5) x, y, w, h, area
+        of each blob's own pixels, and (count, 2) their centroids.
+    """
+    grown = mask.astype(np.uint8)
+    if merge_px > 0:
+        grown = cv2.dilate(grown, np.ones((2 * merge_px + 1,) * 2, np.uint8))
+    count, labels = cv2.connectedComponents(grown, connectivity=8)
+    labels = np.where(mask, labels, 0).astype(np.int32)
+    stats = np.zeros((count, 5), dtype=np.int64)
+    centroids = np.zeros((count, 2))
+    ys, xs = np.nonzero(mask)
+    own = labels[ys, xs]
+    area = np.bincount(own, minlength=count)
+    for values, low, high, mean in ((xs, 0, 2, 0), (ys, 1, 3, 1)):
+        lo = np.full(count, np.iinfo(np.int64).max)
+        hi = np.full(count, -1)
+        np.minimum.at(lo, own, values)
+        np.maximum.at(hi, own, values)
+        stats[:, low], stats[:, high] = lo, hi - lo + 1
+        centroids[:, mean] = np.bincount(own, weights=values, minlength=count) / np.maximum(area, 1)
+    stats[:, 4] = area
+    return count, labels, stats, centroids
+
+
 @timed("detect")
 def choose_blob(
     index: int, moving: torch.Tensor, prediction: Prediction | None, config: DetectConfig
@@ -117,8 +183,7 @@ def choose_blob(
     Split from :func:`detect` so that a tracker trying several predictions on one frame runs
     the slow-mover test once.
     """
-    labelled = moving.cpu().numpy().astype(np.uint8)
-    count, labels, stats, centroids = cv2.connectedComponentsWithStats(labelled, connectivity=8)
+    count, labels, stats, centroids = blobs(moving.cpu().numpy().astype(bool), config.merge_px)
     min_area = config.min_area_px
     if prediction is not None:
         min_area = max(min_area, config.min_fill * math.pi / 4 * prediction.diameter**2)

@@ -106,8 +106,9 @@ def with_neighbours(
 
     Two frames apart, not one: an FMO's streaks in consecutive frames can overlap (it moves
     little more than its size while the shutter is open), but never two frames apart, while a
-    slow mover still covers much the same pixels. Where those frames do not exist (a clip's
-    ends, a clip of three frames or fewer), the nearest ones are used instead.
+    slow mover still covers much the same pixels. At a clip's ends only the side that has a frame
+    two away is used (the adjacent frame's streak would cut off this one's end); only a clip of
+    three frames or fewer falls back on the adjacent frames.
     """
     history: deque[torch.Tensor] = deque(maxlen=2)  # masks of frames t - 2 and t - 1
     ahead: deque[tuple[FrameWithBackground, torch.Tensor]] = deque()  # frame t and up to two after
@@ -115,7 +116,9 @@ def with_neighbours(
     def emit() -> tuple[FrameWithBackground, torch.Tensor, list[torch.Tensor]]:
         frame, mask = ahead.popleft()
         after = [m for _, m in ahead]
-        near = ([history[0]] if history else []) + ([after[-1]] if after else [])
+        near = ([history[0]] if len(history) == 2 else []) + ([after[1]] if len(after) == 2 else [])
+        if not near:  # a clip of three frames or fewer
+            near = ([history[-1]] if history else []) + after[:1]
         history.append(mask)
         return frame, mask, near
 

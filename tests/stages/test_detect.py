@@ -51,3 +51,28 @@ def test_a_tracked_object_is_looked_for_near_its_prediction() -> None:
     assert detect(0, mask, [], near_small, CONFIG).box == small
     far_away = Prediction((300.0, 300.0), 6.0)
     assert detect(0, mask, [], far_away, CONFIG) is None
+
+
+def test_a_faint_tail_is_kept_with_its_strong_part_and_a_faint_blob_alone_is_not() -> None:
+    generator = torch.Generator().manual_seed(0)
+    background = torch.full((3, 40, 60), 0.5)
+    image = background + 0.005 * torch.randn(background.shape, generator=generator)
+    image[:, 10:20, 5:15] += 0.1  # strong: ||diff|| = 0.17
+    image[:, 10:20, 15:30] += 0.04  # its faint tail: 0.07, above 4 x the noise (~0.009)
+    image[:, 30:38, 40:55] += 0.04  # as faint, touching nothing strong
+    mask = difference_mask(image, background, CONFIG)
+    assert mask[10:20, 5:30].all()
+    assert not mask[30:38, 40:55].any()
+    # Noisier frames raise the weak level with their noise: the tail is lost in noise 0.03.
+    noisy = image + 0.03 * torch.randn(background.shape, generator=generator)
+    assert int(difference_mask(noisy, background, CONFIG)[10:20, 15:30].sum()) < 0.5 * 150
+
+
+def test_fragments_of_a_streak_cut_by_a_fence_are_one_blob() -> None:
+    streak = _mask((10, 20, 50, 12))
+    for bar in range(14, 60, 10):  # 2 px bars every 10 px
+        streak[:, bar : bar + 2] = False
+    found = detect(0, streak, [], None, CONFIG)
+    assert found is not None and found.box == (10, 20, 50, 12)
+    apart = _mask((5, 5, 12, 8), (40, 40, 12, 8))  # two objects 23 px apart stay two
+    assert detect(0, apart, [], None, CONFIG).box[2] == 12
