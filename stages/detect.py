@@ -1,12 +1,13 @@
 """Stage 3, detect: find the fast moving object (FMO) in a frame, or report that there is none.
 
-The difference D = ||I - B||_2 > threshold is opened to remove noise. An FMO travels further
-than its own size within one frame, so the pixels it covers now differ from the background in
-neither the frame two before nor the frame two after, while a slow mover (an arm, a person) or
-a change of the scene covers much the same pixels then: pixels that differ in those frames too
-are dropped, and what is left is split into 8-connected blobs. A tracked object is looked for
-near where its motion predicts it, among blobs large enough for its predicted size, preferring
-large blobs near the prediction; otherwise the largest blob wins.
+The difference D = ||I - B||_2 > threshold (with weaker differences connected to it) is opened
+to remove noise. An FMO travels further than its own size within one frame, so the pixels it
+covers now show something else in the frames two before and two after, while a slow mover (an
+arm, a person) differs from the background there too, and a change of the scene still shows the
+same in the later one: such pixels are dropped (:func:`moving_mask`), and what is left is split
+into blobs (fragments a few pixels apart joined). A tracked object is looked for near where its
+motion predicts it, among blobs large enough for its predicted size, preferring large blobs near
+the prediction; otherwise the largest blob wins.
 """
 
 from __future__ import annotations
@@ -107,27 +108,71 @@ def difference_mask(image: torch.Tensor, background: torch.Tensor, config: Detec
     Args:
         image, background: (3, H, W), each uint8 or float32 in [0, 1] (as frames are kept).
     """
-    difference = difference_image(image, background)
+    return threshold_difference(difference_image(image, background), config)
+
+
+def threshold_difference(difference: np.ndarray, config: DetectConfig) -> torch.Tensor:
+    """:func:`difference_mask` of a frame's (H, W) :func:`difference_image`."""
     strong = difference > config.threshold
     return _opened(hysteresis(difference, strong, weak_level(difference, config)), config)
 
 
 @timed("detect")
-def moving_mask(mask: torch.Tensor, neighbours: list[torch.Tensor], config: DetectConfig) -> torch.Tensor:
-    """(H, W) bool: the pixels of ``mask`` that differ in none of the ``neighbours`` (grown by
-    ``motion_px``), opened again. Removing them pixel by pixel, not blob by blob, keeps a streak
-    that touches a slow mover (a ball passing an arm) apart from it."""
+@dataclass(frozen=True)
+class Neighbour:
+    """What the slow-mover test needs of a frame two before or after.
+
+    Attributes:
+        mask: (H, W) bool its difference mask.
+        still: (H, W) bool where this frame still shows in that one (:func:`still_there`),
+            for a later frame; none for an earlier one.
+    """
+
+    mask: torch.Tensor
+    still: torch.Tensor
+
+
+@timed("detect")
+def moving_mask(mask: torch.Tensor, neighbours: list[Neighbour], config: DetectConfig) -> torch.Tensor:
+    """(H, W) bool: the pixels of ``mask`` less those of a slow mover, opened again.
+
+    A pixel is a slow mover's where it differs from the background in every neighbour (an arm
+    that covers much the same pixels throughout; grown by ``motion_px`` first), or where it
+    still shows in a later neighbour (a change of the scene that stays, a line drawn over the
+    video). Removing pixels one by one, not blob by blob, keeps a streak that
+    touches a slow mover (a ball passing an arm) apart from it.
+    """
     kernel = np.ones((2 * config.motion_px + 1,) * 2, np.uint8)
+
+    def grown(m: torch.Tensor) -> np.ndarray:
+        return cv2.dilate(m.cpu().numpy().astype(np.uint8), kernel).astype(bool)
+
     keep = mask.cpu().numpy().astype(bool)
-    for n in neighbours:
-        keep &= ~cv2.dilate(n.cpu().numpy().astype(np.uint8), kernel).astype(bool)
+    if neighbours:
+        everywhere = np.ones_like(keep)
+        for n in neighbours:
+            everywhere &= grown(n.mask)
+            keep &= ~n.still.cpu().numpy()
+        keep &= ~everywhere
     return _opened(keep, config)
+
+
+def still_there(image: torch.Tensor, background: torch.Tensor, later: torch.Tensor) -> torch.Tensor:
+    """(H, W) bool: where this frame looks more like a ``later`` frame than like its own
+    background (||I - I_later|| below half of ||I - B||): what differs from the background now
+    and still shows then, as a change of the scene or a line drawn over the video does. A fast
+    mover's pixels do not: it has gone on, and the later frame shows the background there.
+
+    Args:
+        image, background, later: (3, H, W) each uint8 or float32 in [0, 1].
+    """
+    return torch.from_numpy(difference_image(image, later) < 0.25 * difference_image(image, background))
 
 
 def detect(
     index: int,
     mask: torch.Tensor,
-    neighbours: list[torch.Tensor],
+    neighbours: list[Neighbour],
     prediction: Prediction | None,
     config: DetectConfig,
 ) -> Detection | None:
@@ -136,7 +181,7 @@ def detect(
     Args:
         index: the frame's index.
         mask: (H, W) bool difference mask of this frame (:func:`difference_mask`).
-        neighbours: difference masks of the frames two before and two after, where there are.
+        neighbours: the frames two before and two after, where there are.
         prediction: where a tracked object should be, if one is tracked.
         config: thresholds.
     """

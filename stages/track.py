@@ -28,7 +28,7 @@ from sfb_video.model.motion import Motion, continue_motion
 from sfb_video.results import FrameResult, load_result, save_result
 from sfb_video.run_folder import frame_path, saved_frames
 from stages.background import FrameWithBackground
-from stages.detect import Detection, Prediction, choose_blob, difference_mask, moving_mask
+from stages.detect import Detection, Neighbour, Prediction, choose_blob, difference_mask, moving_mask, still_there
 from stages.fit import fit_detection
 from stages.masks import MaskSource
 
@@ -101,8 +101,9 @@ def join(
 
 def with_neighbours(
     frames: Iterator[FrameWithBackground], config: Config
-) -> Iterator[tuple[FrameWithBackground, torch.Tensor, list[torch.Tensor]]]:
-    """Each frame with its difference mask and those of the frames two before and two after.
+) -> Iterator[tuple[FrameWithBackground, torch.Tensor, list[Neighbour]]]:
+    """Each frame with its difference mask and its neighbours (:class:`~stages.detect.Neighbour`): the
+    frames two before and two after.
 
     Two frames apart, not one: an FMO's streaks in consecutive frames can overlap (it moves
     little more than its size while the shutter is open), but never two frames apart, while a
@@ -110,17 +111,27 @@ def with_neighbours(
     two away is used (the adjacent frame's streak would cut off this one's end); only a clip of
     three frames or fewer falls back on the adjacent frames.
     """
-    history: deque[torch.Tensor] = deque(maxlen=2)  # masks of frames t - 2 and t - 1
+    history: deque[tuple[FrameWithBackground, torch.Tensor]] = deque(maxlen=2)  # frames t - 2, t - 1
     ahead: deque[tuple[FrameWithBackground, torch.Tensor]] = deque()  # frame t and up to two after
 
-    def emit() -> tuple[FrameWithBackground, torch.Tensor, list[torch.Tensor]]:
+    def emit() -> tuple[FrameWithBackground, torch.Tensor, list[Neighbour]]:
         frame, mask = ahead.popleft()
-        after = [m for _, m in ahead]
-        near = ([history[0]] if len(history) == 2 else []) + ([after[1]] if len(after) == 2 else [])
-        if not near:  # a clip of three frames or fewer
-            near = ([history[-1]] if history else []) + after[:1]
-        history.append(mask)
-        return frame, mask, near
+        after = list(ahead)
+        before = [history[0]] if len(history) == 2 else []
+        later = [after[1]] if len(after) == 2 else []
+        if not before and not later:  # a clip of three frames or fewer
+            before, later = ([history[-1]] if history else []), after[:1]
+        history.append((frame, mask))
+        # Only what still shows in a later frame is a scene change: a track that passes the same
+        # place twice (a circular swing) shows the object where an earlier frame had it.
+        return (
+            frame,
+            mask,
+            [
+                *(Neighbour(m, torch.zeros_like(m)) for _, m in before),
+                *(Neighbour(m, still_there(frame.pixels, frame.background_pixels, f.pixels)) for f, m in later),
+            ],
+        )
 
     for frame in frames:
         ahead.append((frame, difference_mask(frame.pixels, frame.background_pixels, config.detect)))
@@ -133,7 +144,7 @@ def with_neighbours(
 def follow(
     index: int,
     mask: torch.Tensor,
-    neighbours: list[torch.Tensor],
+    neighbours: list[Neighbour],
     previous: FrameResult | None,
     may_flip: bool,
     camera: PinholeCamera,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from sfb_video.config import load_config
-from stages.detect import Prediction, detect, difference_mask
+from stages.detect import Neighbour, Prediction, detect, difference_mask
 
 CONFIG = load_config("default").detect
 
@@ -32,14 +32,32 @@ def test_the_fast_mover_is_chosen_over_a_larger_slow_one() -> None:
     ball = (5, 5, 20, 8)
     mask = _mask(arm, ball)
     # The arm covers nearly the same pixels a frame before and after; the ball was elsewhere.
-    neighbours = [_mask((52, 21, 25, 30), (30, 40, 20, 8)), _mask((48, 19, 25, 30))]
-    found = detect(3, mask, neighbours, None, CONFIG)
+    before, after = _mask((52, 21, 25, 30), (30, 40, 20, 8)), _mask((48, 19, 25, 30))
+    nothing = torch.zeros_like(mask)
+    found = detect(3, mask, [Neighbour(before, nothing), Neighbour(after, nothing)], None, CONFIG)
     assert found is not None and found.box == ball
+
+
+def test_what_differs_only_from_now_on_and_still_shows_is_not_a_fast_mover() -> None:
+    # A line drawn over the video that grows each frame (an overlay), or a thing put down: not
+    # there before, still showing after.
+    ball, line = (5, 5, 20, 8), (10, 40, 60, 4)
+    mask = _mask(ball, line)
+    after = _mask(line, (40, 20, 20, 8))
+    found = detect(3, mask, [Neighbour(after, _mask(line))], None, CONFIG)
+    assert found is not None and found.box == ball
+    # The same pixels differing in the frame before because its background held the object
+    # there (it looks different now), and not in the frame after: the streak is kept.
+    streak, nothing = (10, 40, 60, 4), torch.zeros(60, 80, dtype=torch.bool)
+    neighbours = [Neighbour(_mask(streak), nothing), Neighbour(nothing, nothing)]
+    found = detect(3, _mask(streak), neighbours, None, CONFIG)
+    assert found is not None and found.box == streak
 
 
 def test_only_slow_movers_means_no_object() -> None:
     mask = _mask((50, 20, 25, 30))
-    assert detect(0, mask, [_mask((51, 20, 25, 30))], None, CONFIG) is None
+    arm = _mask((51, 20, 25, 30))
+    assert detect(0, mask, [Neighbour(arm, arm & mask)], None, CONFIG) is None
     assert detect(0, torch.zeros(60, 80, dtype=torch.bool), [], None, CONFIG) is None
 
 
