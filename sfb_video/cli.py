@@ -204,13 +204,21 @@ def _print_summary(out: Path, summary: dict) -> None:
     )
     rows = [f for f in summary["frames"] if f["status"] == "fitted"]
     if rows:
-        print("| frame | start | prototype | L_I | s | speed (sizes/s) |")
-        print("|---:|---|---|---:|---:|---:|")
+        print("| frame | start | prototype | L_I | explained | s | speed (sizes/s) |")
+        print("|---:|---|---|---:|---:|---:|---:|")
         for f in rows:
             print(
                 f"| {f['index']} | {f['start']} | {f['prototype']} | {f['losses']['image']:.4f} | "
-                f"{f['seconds']:.1f} | {f['speed_sizes_per_s']:.1f} |"
+                f"{f['explained']:.2f} | {f['seconds']:.1f} | {f['speed_sizes_per_s']:.1f} |"
             )
+    unexplained = summary["unexplained_frames"]
+    if unexplained:
+        shown = ", ".join(str(i) for i in unexplained[:12]) + (", ..." if len(unexplained) > 12 else "")
+        print(
+            f"warning: {len(unexplained)} frame(s) look unexplained (the fit explains less than "
+            f"{summary['min_explained']:.0%} of the frame's difference around the object): {shown}; "
+            "look at them in recording.rrd"
+        )
     print("tsr.mp4, trajectory.csv, meshes/, recording.rrd (sfb-video replay), summary.json")
 
 

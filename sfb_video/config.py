@@ -225,6 +225,11 @@ class JointConfig(_Checked):
     (the lowest joint L_I after the trial steps goes on); empty: keep the seeds' mesh."""
     trial_fraction: float = bounded(0.2, gt=0, le=1)
     """The share of ``iterations`` every competing shape is fitted before the choice."""
+    max_explained_drop: float = bounded(0.15, ge=0)
+    """A window's joint fit stands for its frames when it explains their difference from the
+    background (``explained`` in summary.json, the mean over the window) at most this much less
+    than their single-frame fits do; otherwise they keep the single-frame fits (a path that the
+    trajectory's model cannot follow, such as a circular swing over the window)."""
     learn_exposure: bool = True
     """Learn the exposure fraction (shared by the window) from ``video.exposure_fraction``;
     off keeps that value."""
@@ -278,6 +283,10 @@ class VideoConfig(_Checked):
     retry_ratio: float = bounded(2.0, gt=0)
     """A warm fit whose image loss exceeds the previous frame's by this factor is redone cold,
     and the better of the two kept."""
+    min_explained: float = bounded(0.5, le=1)
+    """A fitted frame whose fit explains less than this share of the frame's difference from
+    its background around the object (``explained`` in summary.json) is listed as unexplained
+    and warned about: a fragment of the streak fitted, or something else fitted."""
     max_side: int = bounded(4096, ge=16)
     """Frames larger than this on a side are refused."""
 

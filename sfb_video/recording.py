@@ -232,6 +232,12 @@ class Recorder(AtomicOutput):
                 strict=True,
             )
 
+    def log_quality(self, index: int, explained: float) -> None:
+        """Log how much of frame ``index``'s difference from its background the fit explains
+        (:func:`stages.composite.explained`) as ``quality/explained``."""
+        self._at(frame=index)
+        self._log("quality/explained", rr.Scalars(float(explained)))
+
     @timed("recording")
     def log_masks(self, index: int, source: str, box: Box, masks: torch.Tensor | None, n: int) -> None:
         """Log which masks the fit of frame ``index`` used and, when it used sub-frame masks, show them.

@@ -143,11 +143,17 @@ class SavedWindow:
         track: the track's number (:class:`stages.track.FrameStatus`).
         result: the joint fit; its ``losses`` name the window's frames.
         before: per frame of the window, the loss terms of its single-frame fit (the seed).
+        explained: per frame, how much of its difference from the background the single-frame
+            fit and the joint fit explain (:func:`stages.composite.fit_quality`), in that order.
+        accepted: whether the joint fit stands for the window's frames (else they keep their
+            single-frame fits, ``joint.max_explained_drop``).
     """
 
     track: int
     result: JointResult
     before: dict[int, dict[str, float]]
+    explained: dict[int, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    accepted: bool = True
 
     @property
     def frames(self) -> list[int]:
@@ -160,6 +166,8 @@ def save_window(folder: Path, window: SavedWindow) -> None:
     record: dict[str, Any] = {
         "track": window.track,
         "before": {int(k): dict(v) for k, v in window.before.items()},
+        "explained": {int(k): tuple(v) for k, v in window.explained.items()},
+        "accepted": window.accepted,
         "prototype": r.prototype,
         "vertices": r.vertices.detach().cpu(),
         "faces": r.topology.faces.cpu(),
@@ -197,11 +205,13 @@ def load_window(path: Path) -> SavedWindow:
             bounce=r["bounce"],
             trials=r["trials"],
         )
-        return SavedWindow(int(r["track"]), result, r["before"])
+        # Windows saved before the quality check have neither field, and stood for their frames.
+        explained = {int(k): (float(v[0]), float(v[1])) for k, v in r.get("explained", {}).items()}
+        return SavedWindow(int(r["track"]), result, r["before"], explained, bool(r.get("accepted", True)))
     except (OSError, RuntimeError, KeyError, TypeError, EOFError) as exc:
         raise SfbError(f"cannot read the window {path}: {exc}") from None
 
 
 def load_windows(folder: Path) -> list[SavedWindow]:
-    """Every window saved in a run ``folder``, in frame order."""
+    """Every window saved in a run ``folder``, in frame order (accepted or not)."""
     return [load_window(p) for p in sorted((folder / WINDOWS).glob("window_*.pt"))]

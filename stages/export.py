@@ -47,13 +47,14 @@ from sfb_video.run_folder import (
 )
 from sfb_video.video import VideoWriter
 from stages.background import FrameWithBackground
-from stages.detect import difference_mask
+from stages.composite import BLUR_POSES, REGION_REACH, explained, object_radius, object_region, path_mask, region_box
+from stages.detect import difference_image, threshold_difference, weak_level
 from stages.joint import Window, frame_windows, with_joint
 from stages.track import FrameStatus
 
 
 class Pasted(Sequence[torch.Tensor]):
-    """Full frames, each the input frame with one patch pasted into a box; made one at a time
+    """Full frames, each the input frame with one patch blended into a box; made one at a time
     when asked for, so that N sub-frames of a large frame are never all in memory.
 
     Args:
@@ -61,12 +62,14 @@ class Pasted(Sequence[torch.Tensor]):
             its dtype (uint8 keeps a 4K frame at 25 MB).
         patches: (N, 3, h, w) float32 in [0, 1], what replaces the box in each frame.
         box: (x, y, w, h) where.
+        weights: (h, w) in [0, 1], how much of each patch pixel replaces the frame's
+            (:func:`stages.composite.object_region`).
     """
 
-    def __init__(self, frame: torch.Tensor, patches: torch.Tensor, box: Box) -> None:
+    def __init__(self, frame: torch.Tensor, patches: torch.Tensor, box: Box, weights: torch.Tensor) -> None:
         if frame.dtype == torch.uint8:
             patches = patches.mul(255).clamp_(0, 255).round_().to(torch.uint8)
-        self.frame, self.patches, self.box = frame, patches, box
+        self.frame, self.patches, self.box, self.weights = frame, patches, box, weights
 
     def __len__(self) -> int:
         return self.patches.shape[0]
@@ -76,7 +79,9 @@ class Pasted(Sequence[torch.Tensor]):
             raise IndexError(k)
         x, y, w, h = self.box
         full = self.frame.clone()
-        full[:, y : y + h, x : x + w] = self.patches[k]
+        under = self.frame[:, y : y + h, x : x + w].float()
+        blended = under + self.weights * (self.patches[k].float() - under)
+        full[:, y : y + h, x : x + w] = blended.round_() if full.dtype == torch.uint8 else blended
         return full
 
 
@@ -85,13 +90,16 @@ class Rendered:
     """One frame rendered from its result, full-frame.
 
     Attributes:
-        reconstruction: (3, H, W) I_hat: the frame with the blurred model inside the crop box.
+        reconstruction: (3, H, W) I_hat: the frame with the blurred model in the object's region.
         subframes: N full frames (3, H, W), the sharp sub-frames, made one at a time.
-        Both in the dtype the frame is kept in (uint8 or float32, :func:`as_float`).
+            Both in the dtype the frame is kept in (uint8 or float32, :func:`as_float`).
+        explained: how much of the frame's difference from its background the fit explains
+            over the object's region (:func:`stages.composite.explained`).
     """
 
     reconstruction: torch.Tensor
     subframes: Pasted
+    explained: float
 
 
 def _resize(images: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
@@ -120,16 +128,30 @@ def streak_box(result: FrameResult, camera: PinholeCamera) -> Box:
 
 
 def render_frame(
-    frame: FrameWithBackground, result: FrameResult, camera: PinholeCamera, n: int, config: Config
+    frame: FrameWithBackground,
+    result: FrameResult,
+    camera: PinholeCamera,
+    n: int,
+    config: Config,
+    difference: np.ndarray | None = None,
 ) -> Rendered:
-    """Render ``result`` into its crop box, grown to hold the object's path (:func:`streak_box`),
-    and paste it into the frame.
+    """Render ``result`` over the background in the object's region and blend it into the
+    frame (:mod:`stages.composite`): the model's path and the parts of the frame's streak
+    connected to it, so that no part of the input's streak is left as a ghost.
 
-    Outside the box the input frame is kept (so other movers stay as they were); inside it the
-    background with the model composited over it replaces the streak. A box wider than
-    ``render.export_max_width`` is rendered at that width and the object scaled up onto it.
+    Outside the region the input frame is kept (so other movers stay as they were). A region
+    wider than ``render.export_max_width`` is rendered at that width and the object scaled up
+    onto it.
+
+    Args:
+        difference: (H, W) the frame's :func:`stages.detect.difference_image`, if already made.
     """
-    box = streak_box(result, camera)
+    if difference is None:
+        difference = difference_image(frame.pixels, frame.background_pixels)
+    radius = object_radius(result.state, camera)
+    path = path_mask(result.state.motion, radius, camera)
+    region = object_region(path, difference, weak_level(difference, config.detect), REGION_REACH * radius)
+    box = region_box(region, streak_box(result, camera))
     x, y, w, h = box
     scale = min(1.0, config.render.export_max_width / w)
     size = (max(1, round(w * scale)), max(1, round(h * scale)))
@@ -139,8 +161,18 @@ def render_frame(
     if size != (w, h):
         # Only the object is scaled up; the background keeps the frame's own pixels.
         patches = patch_bg + _resize(patches - small_bg, (w, h))
-    reconstruction = Pasted(frame.pixels, patches.mean(0, keepdim=True), box)[0]
-    return Rendered(reconstruction, Pasted(frame.pixels, patches, box))
+    weights = torch.from_numpy(region[y : y + h, x : x + w]).to(patches.device)
+    blurred = patches.mean(0)
+    if n * config.render.steps_per_subframe < BLUR_POSES:
+        # Few sub-frames average into a few sharp copies, not the frame's blur: the quality
+        # signal would depend on the TSR factor.
+        camera_box = camera.crop(x, y, w, h, *size)
+        blurred = patch_bg + _resize(
+            result.state.render_blurred(camera_box, small_bg, BLUR_POSES, config.render) - small_bg, (w, h)
+        )
+    quality = explained(as_float(frame.pixels[:, y : y + h, x : x + w]), patch_bg, blurred, weights)
+    reconstruction = Pasted(frame.pixels, blurred[None], box, weights)[0]
+    return Rendered(reconstruction, Pasted(frame.pixels, patches, box, weights), quality)
 
 
 def trajectory_rows(
@@ -324,7 +356,8 @@ def export_frames(
     ):
         for frame in frames:
             recorder.log_frame(frame.index, frame.pixels, frame.background_pixels)
-            mask = difference_mask(frame.pixels, frame.background_pixels, config.detect)
+            difference = difference_image(frame.pixels, frame.background_pixels)
+            mask = threshold_difference(difference, config.detect)
             status = by_index.get(frame.index)
             recorder.log_detection(frame.index, None if status is None else status.box, mask)
             path = frame_path(folder, frame.index)
@@ -335,18 +368,20 @@ def export_frames(
             single = load_result(path)
             window = joint.of(frame.index)
             result = single if window is None else with_joint(single, window)
-            rendered = render_frame(frame, result, camera, n, config)
+            rendered = render_frame(frame, result, camera, n, config, difference)
             for sub in rendered.subframes:
                 video.write(sub)
             recorder.log_fit(
                 frame.index, result.state, rendered.reconstruction, rendered.subframes, result.losses, result.curve
             )
+            recorder.log_quality(frame.index, rendered.explained)
             order = _mask_order(result)
             source = result.mask_source if order is None else f"{result.mask_source}, order {order}"
             recorder.log_masks(frame.index, source, result.crop_box, result.masks, n)
             write_glb(result.state, mesh_path(folder, frame.index))
             rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
             record = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)
+            record["explained"] = rendered.explained
             if window is not None:
                 record.update(window=window.frames[0], losses_before=single.losses, prototype_before=single.prototype)
                 if frame.index + 1 in window.result.losses:

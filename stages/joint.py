@@ -26,6 +26,7 @@ from sfb_video.config import Config
 from sfb_video.crop import make_crop
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.joint import Seed, WindowFrame, fit_window
+from sfb_video.model.scene import ObjectState
 from sfb_video.results import (
     FrameResult,
     SavedWindow,
@@ -38,6 +39,7 @@ from sfb_video.results import (
 from sfb_video.run_folder import frame_path, window_path
 from sfb_video.timing import timed
 from stages.background import FrameWithBackground
+from stages.composite import fit_quality
 from stages.track import FrameStatus
 
 Window = tuple[int, list[int]]
@@ -83,9 +85,10 @@ def frame_windows(windows: list[Window]) -> dict[int, int]:
 
 
 def previous_window(windows: list[Window], done: dict[int, SavedWindow], track: int, first: int) -> SavedWindow | None:
-    """The last fitted window of ``track`` before the one that starts at frame ``first``, or None."""
+    """The last accepted window of ``track`` before the one that starts at frame ``first``, or
+    None."""
     earlier = [frames for t, frames in windows if t == track and frames[0] < first]
-    return next((done[f[0]] for f in reversed(earlier) if f[0] in done), None)
+    return next((done[f[0]] for f in reversed(earlier) if f[0] in done and done[f[0]].accepted), None)
 
 
 def with_joint(result: FrameResult, window: SavedWindow) -> FrameResult:
@@ -102,8 +105,8 @@ def with_joint(result: FrameResult, window: SavedWindow) -> FrameResult:
 
 def final_results(folder: Path) -> dict[int, FrameResult]:
     """Every fitted frame of a run, by index, as its outputs show it: from the window that
-    stands for it where a joint fit was saved, else its single-frame fit."""
-    windows = {w.frames[0]: w for w in load_windows(folder)}
+    stands for it where an accepted joint fit was saved, else its single-frame fit."""
+    windows = {w.frames[0]: w for w in load_windows(folder) if w.accepted}
     owner = frame_windows([(w.track, w.frames) for w in windows.values()])
     results = load_results(folder)
     return {i: with_joint(r, windows[owner[i]]) if i in owner else r for i, r in results.items()}
@@ -171,7 +174,16 @@ def fit_track_window(
         prototypes=() if previous is not None else config.joint.prototypes,
         shape_from=shape_from,
     )
-    return SavedWindow(track, result, before)
+    explained = {
+        i: (_quality(single(i).state, crops[i], config), _quality(result.state(i), crops[i], config)) for i in members
+    }
+    drop = sum(b - a for b, a in explained.values()) / len(members)
+    return SavedWindow(track, result, before, explained, drop <= config.joint.max_explained_drop)
+
+
+def _quality(state: ObjectState, frame: WindowFrame, config: Config) -> float:
+    crop = frame.crop
+    return fit_quality(state, crop.image, crop.background, crop.camera, config.detect, config.render)
 
 
 @timed("joint")

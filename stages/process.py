@@ -136,20 +136,29 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     background = None if record["background"] is None else Path(record["background"])
     stream = with_backgrounds(video, config.video, info.frame_count, frames, background)
     windows = track_windows(statuses, config.joint.window, config.joint.overlap) if config.joint.enabled else []
-    # A window whose joint fit diverged was not saved: its frames keep their single-frame fits.
+    # A window whose joint fit diverged was not saved, and one that explains its frames worse
+    # than their single-frame fits is not accepted: their frames keep the single-frame fits.
     windows = [w for w in windows if window_path(folder, w[1][0]).is_file()]
+    summary_windows = windows
+    windows = [w for w in windows if load_window(window_path(folder, w[1][0])).accepted]
     diameter = record["object_diameter"]
     name = printable(video.stem)
     done = export_frames(folder, stream, statuses, windows, camera, info.fps, tsr, config, name, diameter)
     write_csv(folder / TRAJECTORY, done.rows)
-    summary = _summary(record, info, statuses, done, tsr, device_note)
-    summary["joint"] = _joint_summary(folder, windows)
+    summary = _summary(record, info, statuses, done, tsr, device_note, config.video.min_explained)
+    summary["joint"] = _joint_summary(folder, summary_windows)
     write_json(folder / SUMMARY, summary)
     return summary
 
 
 def _summary(
-    record: dict, info: VideoInfo, statuses: list[FrameStatus], done: Exported, tsr: int, device_note: str
+    record: dict,
+    info: VideoInfo,
+    statuses: list[FrameStatus],
+    done: Exported,
+    tsr: int,
+    device_note: str,
+    min_explained: float,
 ) -> dict:
     frames = [dataclasses.asdict(s) | done.fits.get(s.index, {}) for s in statuses]
     fits = list(done.fits.values())
@@ -171,6 +180,8 @@ def _summary(
         "mean_seconds_cold": mean("seconds", "cold"),
         "mean_seconds_warm": mean("seconds", "warm"),
         "mean_image_loss": None if not fits else sum(f["losses"]["image"] for f in fits) / len(fits),
+        "unexplained_frames": sorted(i for i, f in done.fits.items() if f["explained"] < min_explained),
+        "min_explained": min_explained,
         "best_frame": done.best,
         "tsr": tsr,
         "tsr_video_frames": done.video_frames,
@@ -180,6 +191,10 @@ def _summary(
         "outputs": OUTPUTS,
         "frames": frames,
     }
+
+
+def _mean(values: list[float]) -> float | None:
+    return sum(values) / len(values) if values else None
 
 
 def _joint_summary(folder: Path, windows: list[tuple[int, list[int]]]) -> dict:
@@ -200,12 +215,16 @@ def _joint_summary(folder: Path, windows: list[tuple[int, list[int]]]) -> dict:
                 "prototype_trials": joint.trials,
                 "image_loss_before": sum(saved.before[i]["image"] for i in frames) / len(frames),
                 "image_loss_after": sum(joint.losses[i]["image"] for i in frames) / len(frames),
+                "explained_before": _mean([saved.explained[i][0] for i in frames if i in saved.explained]),
+                "explained_after": _mean([saved.explained[i][1] for i in frames if i in saved.explained]),
+                "accepted": saved.accepted,
                 "seconds": joint.seconds,
             }
         )
-    fractions = sorted(r["exposure_fraction"] for r in rows)
+    fractions = sorted(r["exposure_fraction"] for r in rows if r["accepted"])
     return {
         "enabled": bool(windows),
+        "windows_accepted": sum(r["accepted"] for r in rows),
         "exposure_fraction": fractions[len(fractions) // 2] if fractions else None,
         "windows": rows,
     }

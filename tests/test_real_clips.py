@@ -34,10 +34,12 @@ def test_pipeline_runs_end_to_end(name: str, tmp_path: Path) -> None:
     assert summary["frames_fitted"] >= {"falling_pen": 4, "floorball_res": 8}[name]
     for name_ in ("tsr.mp4", "trajectory.csv", "recording.rrd", "summary.json"):
         assert (tmp_path / name / name_).is_file()
-    losses = sorted(f["losses"]["image"] for f in summary["frames"] if f["status"] == "fitted")
-    # Median L_I measured 0.081-0.107 on the pen over rounding-level changes to the step (the
-    # tracking then picks other fragments of the thin pen: issue 19), floorball 0.075-0.101.
-    assert losses[len(losses) // 2] < 0.12
+    # How much of each frame's difference from its background the fit explains around the object
+    # (1: all, 0: no better than the background alone); unlike L_I it does not grow with the crop.
+    # Measured medians: pen 0.26 (its streak is found only in part: long and slow for its size),
+    # floorball 0.18 (an overlay drawn over the clip crosses the ball's streaks).
+    explained = sorted(f["explained"] for f in summary["frames"] if f["status"] == "fitted")
+    assert explained[len(explained) // 2] > 0.1
 
 
 def test_circle_fast_finds_the_ball_not_the_arm(tmp_path: Path) -> None:
@@ -59,13 +61,13 @@ def test_circle_fast_finds_the_ball_not_the_arm(tmp_path: Path) -> None:
         # green exceeds red for the ball and falls below it for the arm.
         if float(image[1][changed].mean() - image[0][changed].mean()) <= 0:
             arm_like.append(frame.index)
-    # Measured: 5 of 96. In frames 4, 36, 60 and 73 the ball is faint or crosses the fist, and a
-    # shred of the arm left by the slow-mover test lay nearer the prediction; frame 67 is
-    # borderline (green - red = -0.01).
+    # Measured: 5 of 96 (39, 49, 60, 73, 83), where the ball is faint or crosses the fist and a
+    # shred of the arm left by the slow-mover test lay nearer the prediction.
     assert len(arm_like) <= 6
     fitted = [f for f in frames.values() if f["status"] == "fitted"]
-    single = sorted(f.get("losses_before", f["losses"])["image"] for f in fitted)
-    assert single[len(single) // 2] < 0.06  # measured median L_I 0.052
-    # The joint fit explains each frame with a shared shape and one path: measured median 0.071.
-    joint = sorted(f["losses"]["image"] for f in fitted)
-    assert joint[len(joint) // 2] < 0.08
+    explained = sorted(f["explained"] for f in fitted)
+    assert explained[len(explained) // 2] > 0.35  # measured 0.47: the straight path of one
+    # exposure cannot follow the curved streak of the swing
+    # Cold retries where the warm fit missed: measured 29 with the detector that cut streaks at
+    # a neighbour's difference, 20 with the whole streak found.
+    assert summary["cold_starts"] <= 26

@@ -258,7 +258,7 @@ def _joint_rows(
             done[members[0]] = fit_track_window(track, members, crops, lambda i: fitted[i][1], previous, camera, config)
         for i in members:
             seconds[i] += (time.perf_counter() - started) / len(members)
-    owner = frame_windows([w for w in windows if w[1][0] in done])
+    owner = frame_windows([w for w in windows if w[1][0] in done and done[w[1][0]].accepted])
     rows = list(unfitted)
     for index, (frame, result, _) in sorted(fitted.items()):
         if index in owner:
