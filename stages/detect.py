@@ -188,10 +188,11 @@ def detect(
     return choose_blob(index, moving_mask(mask, neighbours, config), prediction, config)
 
 
-def blobs(mask: np.ndarray, merge_px: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
-    """The blobs of a (H, W) bool ``mask``, fragments less than ``2 * merge_px`` apart joined
-    into one (a streak cut by a fence's bars, or split where it crosses a background of its
-    own colour).
+def blobs(mask: np.ndarray, merge_px: int, min_area: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """The blobs of a (H, W) bool ``mask``: fragments less than ``2 * merge_px`` apart joined
+    into one (a streak cut by a fence's wires, or split where it crosses a background of its
+    own colour), then fragments of at least ``min_area`` pixels whose boxes overlap (the two
+    sides of a ring's streak, a disc seen through a fence).
 
     Returns:
         as :func:`cv2.connectedComponentsWithStats`: the number of labels (0 is the
@@ -203,6 +204,36 @@ def blobs(mask: np.ndarray, merge_px: int) -> tuple[int, np.ndarray, np.ndarray,
         grown = cv2.dilate(grown, np.ones((2 * merge_px + 1,) * 2, np.uint8))
     count, labels = cv2.connectedComponents(grown, connectivity=8)
     labels = np.where(mask, labels, 0).astype(np.int32)
+    stats, _ = _blob_stats(mask, labels, count)
+    parent = np.arange(count)
+    big = [k for k in range(1, count) if stats[k, 4] >= min_area]
+    changed = True
+    while changed:  # boxes grow as they merge: repeat until none overlaps another
+        changed = False
+        for i, a in enumerate(big):
+            for b in big[i + 1 :]:
+                ra, rb = parent[a], parent[b]
+                if ra != rb and _overlap(stats[ra], stats[rb]):
+                    parent[parent == rb] = ra
+                    stats[ra, :4] = _union(stats[ra], stats[rb])
+                    changed = True
+    labels = parent[labels].astype(np.int32)
+    stats, centroids = _blob_stats(mask, labels, count)
+    return count, labels, stats, centroids
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two (x, y, w, h, ...) boxes share a pixel."""
+    return bool(a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3])
+
+
+def _union(a: np.ndarray, b: np.ndarray) -> tuple[int, int, int, int]:
+    x0, y0 = min(a[0], b[0]), min(a[1], b[1])
+    return x0, y0, max(a[0] + a[2], b[0] + b[2]) - x0, max(a[1] + a[3], b[1] + b[3]) - y0
+
+
+def _blob_stats(mask: np.ndarray, labels: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(count, 5) x, y, w, h, area and (count, 2) centroids of each label's pixels in ``mask``."""
     stats = np.zeros((count, 5), dtype=np.int64)
     centroids = np.zeros((count, 2))
     ys, xs = np.nonzero(mask)
@@ -216,7 +247,7 @@ def blobs(mask: np.ndarray, merge_px: int) -> tuple[int, np.ndarray, np.ndarray,
         stats[:, low], stats[:, high] = lo, hi - lo + 1
         centroids[:, mean] = np.bincount(own, weights=values, minlength=count) / np.maximum(area, 1)
     stats[:, 4] = area
-    return count, labels, stats, centroids
+    return stats, centroids
 
 
 @timed("detect")
@@ -228,7 +259,7 @@ def choose_blob(
     Split from :func:`detect` so that a tracker trying several predictions on one frame runs
     the slow-mover test once.
     """
-    count, labels, stats, centroids = blobs(moving.cpu().numpy().astype(bool), config.merge_px)
+    count, labels, stats, centroids = blobs(moving.cpu().numpy().astype(bool), config.merge_px, config.min_area_px)
     min_area = config.min_area_px
     if prediction is not None:
         min_area = max(min_area, config.min_fill * math.pi / 4 * prediction.diameter**2)

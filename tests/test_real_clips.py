@@ -9,12 +9,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
+from benchmarks.detect import aerobie_clip, box_iou
 from sfb_video.config import load_config
-from stages.background import with_backgrounds
+from stages.background import running_median, with_backgrounds
+from stages.detect import choose_blob, moving_mask
 from stages.process import ProcessOptions, process_clip
+from stages.read import Frame
+from stages.track import with_neighbours
 
 CLIPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "clips"
 pytestmark = pytest.mark.skipif(not CLIPS.is_dir(), reason="needs ../shared/data/clips beside the checkout")
@@ -71,3 +76,15 @@ def test_circle_fast_finds_the_ball_not_the_arm(tmp_path: Path) -> None:
     # Cold retries where the warm fit missed: measured 29 with the detector that cut streaks at
     # a neighbour's difference, 20 with the whole streak found.
     assert summary["cold_starts"] <= 26
+
+
+def test_a_large_faint_disc_is_detected_whole_in_every_frame() -> None:
+    # The real aerobie (a flying ring, grey on grey behind a fence) pasted along a path, 45 px a
+    # frame: its ~80 px streaks overlap from frame to frame, large and slow for its size.
+    pixels, boxes = aerobie_clip(8)
+    config = load_config("fast")
+    frames = (Frame(k, torch.from_numpy(np.ascontiguousarray(f.transpose(2, 0, 1)))) for k, f in enumerate(pixels))
+    for frame, mask, neighbours in with_neighbours(running_median(frames, config.video.background_window), config):
+        found = choose_blob(frame.index, moving_mask(mask, neighbours, config.detect), None, config.detect)
+        # The true box holds every pixel 0.02 away from the background; measured IoU 0.73-0.82.
+        assert found is not None and box_iou(found.box, boxes[frame.index]) > 0.65, frame.index

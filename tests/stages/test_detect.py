@@ -94,3 +94,12 @@ def test_fragments_of_a_streak_cut_by_a_fence_are_one_blob() -> None:
     assert found is not None and found.box == (10, 20, 50, 12)
     apart = _mask((5, 5, 12, 8), (40, 40, 12, 8))  # two objects 23 px apart stay two
     assert detect(0, apart, [], None, CONFIG).box[2] == 12
+
+
+def test_the_two_sides_of_a_ring_streak_are_one_blob() -> None:
+    # A ring's blurred streak differs from the background on its two sides, far apart across
+    # its hole; their boxes overlap.
+    ring = _mask((10, 10, 40, 8), (10, 10, 8, 40))
+    ring |= _mask((30, 30, 30, 8), (52, 22, 8, 16))
+    found = detect(0, ring, [], None, CONFIG)
+    assert found is not None and found.box == (10, 10, 50, 40)
