@@ -211,6 +211,12 @@ def _print_summary(out: Path, summary: dict) -> None:
                 f"| {f['index']} | {f['start']} | {f['prototype']} | {f['losses']['image']:.4f} | "
                 f"{f['explained']:.2f} | {f['seconds']:.1f} | {f['speed_sizes_per_s']:.1f} |"
             )
+    others = summary["frames_with_other_movers"]
+    if others:
+        print(
+            f"note: {others} frame(s) showed another moving object beside the tracked one; one object is "
+            "tracked (the one its track predicts, else the largest); see the frames' notes in summary.json"
+        )
     unexplained = summary["unexplained_frames"]
     if unexplained:
         shown = ", ".join(str(i) for i in unexplained[:12]) + (", ..." if len(unexplained) > 12 else "")

@@ -33,11 +33,14 @@ class Detection:
         index: the frame's index.
         box: (x, y, w, h) tight box of the object's blob.
         mask: (H, W) bool, the blob.
+        others: how many other blobs could have been the object (at least a quarter of its
+            area, within the track's gate): another fast mover, which is not tracked.
     """
 
     index: int
     box: Box
     mask: torch.Tensor
+    others: int = 0
 
 
 @dataclass(frozen=True)
@@ -264,6 +267,7 @@ def choose_blob(
     if prediction is not None:
         min_area = max(min_area, config.min_fill * math.pi / 4 * prediction.diameter**2)
     best: tuple[float, int] | None = None
+    candidates: list[int] = []
     for label in range(1, count):
         area = float(stats[label, cv2.CC_STAT_AREA])
         if area < min_area:
@@ -277,9 +281,11 @@ def choose_blob(
             # Nearness alone would pick a speck or a shred of a slow mover next to a poor
             # prediction over the real streak a little further away; size counts too.
             score = area / (1 + (distance / max(prediction.diameter, 1.0)) ** 2)
+        candidates.append(label)
         if best is None or score > best[0]:
             best = (score, label)
     if best is None:
         return None
     x, y, w, h = (int(v) for v in stats[best[1], :4])
-    return Detection(index, (x, y, w, h), torch.from_numpy(labels == best[1]))
+    others = sum(k != best[1] and stats[k, 4] >= stats[best[1], 4] / 4 for k in candidates)
+    return Detection(index, (x, y, w, h), torch.from_numpy(labels == best[1]), others)

@@ -175,6 +175,7 @@ def _summary(
         "frames_read": len(statuses),
         "frames_fitted": len(fits),
         "frames_without_object": sum(s.status == "no_object" for s in statuses),
+        "frames_with_other_movers": sum("other moving object" in s.note for s in statuses),
         "cold_starts": sum(f["start"] == "cold" for f in fits),
         "warm_starts": sum(f["start"] == "warm" for f in fits),
         "mean_seconds_cold": mean("seconds", "cold"),

@@ -176,6 +176,14 @@ def follow(
     return choose_blob(index, moving, None, config.detect), None
 
 
+def _others_note(detection: Detection, followed: FrameResult | None) -> str:
+    """What a frame's status says of other moving objects seen beside the tracked one."""
+    if not detection.others:
+        return ""
+    chosen = "the one the track predicts" if followed is not None else "the largest"
+    return f"{detection.others} other moving object(s) seen; one object is tracked: {chosen}"
+
+
 def track_and_fit(
     frames: Iterator[FrameWithBackground],
     folder: Path,
@@ -215,7 +223,7 @@ def track_and_fit(
                 if result is None:
                     start = previous if config.video.warm_start else None
                     result = fit_detection(frame, detection, camera, config, start, device, masks)
-                status = FrameStatus(frame.index, "fitted", detection.box)
+                status = FrameStatus(frame.index, "fitted", detection.box, _others_note(detection, followed))
             except NoObjectError as exc:
                 status, result = FrameStatus(frame.index, "no_object", detection.box, str(exc)), None
         if result is not None:

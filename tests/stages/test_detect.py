@@ -103,3 +103,10 @@ def test_the_two_sides_of_a_ring_streak_are_one_blob() -> None:
     ring |= _mask((30, 30, 30, 8), (52, 22, 8, 16))
     found = detect(0, ring, [], None, CONFIG)
     assert found is not None and found.box == (10, 10, 50, 40)
+
+
+def test_another_fast_mover_beside_the_chosen_one_is_counted() -> None:
+    one, other, speck = (5, 5, 20, 8), (40, 40, 16, 8), (70, 5, 5, 5)
+    found = detect(0, _mask(one, other, speck), [], None, CONFIG)
+    assert found is not None and found.box == one and found.others == 1  # the speck is noise
+    assert detect(0, _mask(one), [], None, CONFIG).others == 0
