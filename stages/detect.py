@@ -194,8 +194,8 @@ def detect(
 def blobs(mask: np.ndarray, merge_px: int, min_area: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """The blobs of a (H, W) bool ``mask``: fragments less than ``2 * merge_px`` apart joined
     into one (a streak cut by a fence's wires, or split where it crosses a background of its
-    own colour), then fragments of at least ``min_area`` pixels whose boxes overlap (the two
-    sides of a ring's streak, a disc seen through a fence).
+    own colour), then fragments of at least ``min_area`` pixels whose boxes overlap much (the
+    two sides of a ring's streak, a disc seen through a fence).
 
     Returns:
         as :func:`cv2.connectedComponentsWithStats`: the number of labels (0 is the
@@ -225,9 +225,16 @@ def blobs(mask: np.ndarray, merge_px: int, min_area: int) -> tuple[int, np.ndarr
     return count, labels, stats, centroids
 
 
+MERGE_OVERLAP = 0.2
+"""Fragments whose boxes share at least this share of the smaller box are one blob."""
+
+
 def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether two (x, y, w, h, ...) boxes share a pixel."""
-    return bool(a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3])
+    """Whether two (x, y, w, h, ...) boxes share :data:`MERGE_OVERLAP` of the smaller one: the
+    two sides of a ring overlap much; a shred of an arm beside a ball, if at all, little."""
+    w = min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0])
+    h = min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1])
+    return w > 0 and h > 0 and w * h >= MERGE_OVERLAP * min(a[2] * a[3], b[2] * b[3])
 
 
 def _union(a: np.ndarray, b: np.ndarray) -> tuple[int, int, int, int]:

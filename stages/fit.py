@@ -17,7 +17,7 @@ from sfb_video.config import Config
 from sfb_video.crop import make_crop
 from sfb_video.fitter import WarmStart, fit_frame
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.model.motion import continue_motion
+from sfb_video.model.motion import Motion, continue_motion, continue_turning
 from sfb_video.results import FrameResult
 from sfb_video.timing import timed
 from stages.background import FrameWithBackground
@@ -26,6 +26,15 @@ from stages.masks import MaskSource, orient_masks
 
 
 @timed("fit")
+def continued(previous: FrameResult, earlier: FrameResult | None, index: int, exposure_fraction: float) -> Motion:
+    """Frame ``index``'s motion as ``previous``'s continues: turning as the path turned from
+    ``earlier`` (the frame before ``previous``, where there is one), else straight."""
+    frames_ahead = index - previous.index
+    if earlier is None or previous.index - earlier.index != 1:
+        return continue_motion(previous.state.motion, frames_ahead, exposure_fraction)
+    return continue_turning(earlier.state.motion, previous.state.motion, frames_ahead, exposure_fraction)
+
+
 def fit_detection(
     frame: FrameWithBackground,
     detection: Detection,
@@ -34,8 +43,10 @@ def fit_detection(
     previous: FrameResult | None,
     device: torch.device,
     masks: MaskSource | None = None,
+    earlier: FrameResult | None = None,
 ) -> FrameResult:
-    """Fit the object of one frame, warm from ``previous`` when given (a frame of the same track).
+    """Fit the object of one frame, warm from ``previous`` when given (a frame of the same track;
+    with ``earlier``, the frame before it, its motion continues turning as the path turned).
 
     With DeFMO ``masks``, the fit uses L_S on them, in the time direction the warm start
     predicts when there is one (DeFMO's own order otherwise); without, L_D.
@@ -56,7 +67,7 @@ def fit_detection(
     crop = make_crop(image, background, detection.box, camera, config.crop, detection.mask.to(device))
     warm = None
     if previous is not None:
-        motion = continue_motion(previous.state.motion, frame.index - previous.index, config.video.exposure_fraction)
+        motion = continued(previous, earlier, frame.index, config.video.exposure_fraction)
         warm = WarmStart(previous.prototype, previous.state.vertices, previous.state.texture, motion.to(device))
     started = time.perf_counter()
     subframe_masks = None if masks is None else masks.masks(frame, detection.box, crop, config.render.time_steps)

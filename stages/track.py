@@ -29,7 +29,7 @@ from sfb_video.results import FrameResult, load_result, save_result
 from sfb_video.run_folder import frame_path, saved_frames
 from stages.background import FrameWithBackground
 from stages.detect import Detection, Neighbour, Prediction, choose_blob, difference_mask, moving_mask, still_there
-from stages.fit import fit_detection
+from stages.fit import continued, fit_detection
 from stages.masks import MaskSource
 
 
@@ -149,10 +149,12 @@ def follow(
     may_flip: bool,
     camera: PinholeCamera,
     config: Config,
+    earlier: FrameResult | None = None,
 ) -> tuple[Detection | None, FrameResult | None]:
     """Find the object of frame ``index``, near where the track's last frame predicts it.
 
-    The prediction continues ``previous``'s motion; when its time direction is not known yet
+    The prediction continues ``previous``'s motion (turning as it turned from ``earlier``, the
+    frame before it, where there is one); when its time direction is not known yet
     (``may_flip``: the first frame of a track), both directions are tried and the one whose
     prediction lands nearer its detection is kept.
 
@@ -164,7 +166,7 @@ def follow(
     moving = moving_mask(mask, neighbours, config.detect)
     best: tuple[float, Detection, FrameResult] | None = None
     for option in options:
-        prediction = predict(continue_motion(option.state.motion, 1, config.video.exposure_fraction), camera)
+        prediction = predict(continued(option, earlier, index, config.video.exposure_fraction), camera)
         found = choose_blob(index, moving, prediction, config.detect)
         if found is not None:
             x, y, w, h = found.box
@@ -204,13 +206,18 @@ def track_and_fit(
     saved = saved_frames(folder)
     statuses: list[FrameStatus] = []
     previous: FrameResult | None = None  # the last fitted frame of the current track
+    earlier: FrameResult | None = None  # the one before it on the track
     track_length, tracks = 0, 0
     for frame, mask, neighbours in with_neighbours(frames, config):
         if previous is not None and frame.index - previous.index != 1:
             previous, track_length = None, 0
-        detection, followed = follow(frame.index, mask, neighbours, previous, track_length == 1, camera, config)
+        earlier = earlier if track_length >= 2 else None
+        detection, followed = follow(
+            frame.index, mask, neighbours, previous, track_length == 1, camera, config, earlier
+        )
         if followed is None:
             previous, track_length = None, 0  # nothing near the prediction: a new track
+            earlier = None
         elif followed is not previous:
             previous = followed  # the track's first frame, now known to run the other way
             save_result(folder, previous)
@@ -222,7 +229,7 @@ def track_and_fit(
             try:
                 if result is None:
                     start = previous if config.video.warm_start else None
-                    result = fit_detection(frame, detection, camera, config, start, device, masks)
+                    result = fit_detection(frame, detection, camera, config, start, device, masks, earlier)
                 status = FrameStatus(frame.index, "fitted", detection.box, _others_note(detection, followed))
             except NoObjectError as exc:
                 status, result = FrameStatus(frame.index, "no_object", detection.box, str(exc)), None
@@ -236,7 +243,7 @@ def track_and_fit(
                     save_result(folder, before)
             if result is not loaded:
                 save_result(folder, result)
-            previous, track_length = result, track_length + 1
+            earlier, previous, track_length = previous, result, track_length + 1
         else:
             previous, track_length = None, 0
         statuses.append(status)

@@ -74,6 +74,32 @@ def continue_motion(motion: Motion, frames_ahead: int, exposure_fraction: float)
     return Motion(motion.x0 + k * motion.dx, motion.dx, rot0, motion.omega)
 
 
+MAX_TURN_DEG = 90.0
+"""A path that turned more than this between two exposures is not continued as a turn (a
+bounce, or a poor fit)."""
+
+
+def continue_turning(earlier: Motion, motion: Motion, frames_ahead: int, exposure_fraction: float) -> Motion:
+    """As :func:`continue_motion`, with the translation turning as it turned from ``earlier``
+    (the exposure one frame before ``motion``'s) to ``motion``: a circular swing is followed,
+    a straight track continues straight. A turn over :data:`MAX_TURN_DEG` is not continued.
+    """
+    axis = torch.linalg.cross(earlier.dx, motion.dx)
+    angle = math.atan2(float(axis.norm()), float(earlier.dx @ motion.dx))
+    if float(axis.norm()) < 1e-12 or math.degrees(angle) > MAX_TURN_DEG:
+        return continue_motion(motion, frames_ahead, exposure_fraction)
+    unit = axis / axis.norm()
+    n, e = frames_ahead, exposure_fraction
+    straight = continue_motion(motion, frames_ahead, exposure_fraction)
+    # On a circle at constant speed turning ``angle`` a frame, dx is the chord of e x angle and
+    # the next start lies at the end of the chord of n x angle: their directions differ by
+    # (n - e) x angle / 2 and their lengths are in the ratio of the half-angles' sines.
+    along = axis_angle_to_matrix(unit * ((n - e) * angle / 2))
+    ratio = math.sin(n * angle / 2) / math.sin(e * angle / 2)
+    turned = axis_angle_to_matrix(unit * (n * angle))
+    return Motion(motion.x0 + ratio * (along @ motion.dx), turned @ motion.dx, straight.rot0, motion.omega)
+
+
 @dataclass(frozen=True)
 class Streak:
     """The blur streak seen in a difference mask, in crop pixels.

@@ -5,7 +5,14 @@ import torch
 
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import axis_angle_to_matrix, rotation_angle_deg
-from sfb_video.model.motion import Motion, MotionParams, cap_rotation, streak_from_mask
+from sfb_video.model.motion import (
+    Motion,
+    MotionParams,
+    cap_rotation,
+    continue_motion,
+    continue_turning,
+    streak_from_mask,
+)
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0).crop(60, 40, 160, 120, 160, 120)
 
@@ -114,3 +121,32 @@ def test_the_cpu_node_matches_the_tensor_chain_in_value_and_gradient(spin: float
         results.append([rotations.detach(), positions.detach(), *(p.grad.clone() for p in params.parameters())])
     for node, reference in zip(*results, strict=True):
         assert torch.allclose(node, reference, rtol=1e-10, atol=1e-12)
+
+
+def _on_circle(frame: int, turn: float, exposure: float) -> Motion:
+    """The exposure of frame ``frame`` on a unit circle at depth 5 turning ``turn`` rad a frame:
+    the chord from its start to its end."""
+    start, end = turn * frame, turn * (frame + exposure)
+
+    def point(a: float) -> torch.Tensor:
+        return torch.tensor([math.cos(a), math.sin(a), 5.0])
+
+    return Motion(point(start), point(end) - point(start), torch.eye(3), torch.zeros(3))
+
+
+@pytest.mark.parametrize("turn", [0.3, -0.8])
+def test_a_circular_swing_is_continued_round_its_circle(turn: float) -> None:
+    e = 0.5
+    earlier, motion, truth = (_on_circle(k, turn, e) for k in range(3))
+    turning = continue_turning(earlier, motion, 1, e)
+    straight = continue_motion(motion, 1, e)
+    start_error = float((turning.x0 - truth.x0).norm())
+    assert start_error < 0.3 * float((straight.x0 - truth.x0).norm())
+    assert float((turning.dx - truth.dx).norm()) < 0.05 * float(truth.dx.norm())
+
+
+def test_a_straight_track_continues_straight() -> None:
+    earlier = Motion(torch.tensor([0.0, 0.0, 5.0]), torch.tensor([0.5, 0.1, 0.0]), torch.eye(3), torch.zeros(3))
+    motion = Motion(earlier.x0 + 2 * earlier.dx, earlier.dx, torch.eye(3), torch.zeros(3))
+    turning, straight = continue_turning(earlier, motion, 1, 0.5), continue_motion(motion, 1, 0.5)
+    assert torch.allclose(turning.x0, straight.x0) and torch.allclose(turning.dx, straight.dx)
