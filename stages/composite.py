@@ -74,11 +74,25 @@ def object_region(path: np.ndarray, difference: np.ndarray, level: float, reach:
     """
     connected = hysteresis(difference, path, level)
     grow = max(1, math.ceil(reach))
-    near = cv2.dilate(path.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1,) * 2))
-    region = (path | (connected & near.astype(bool))).astype(np.uint8)
+    # Everything happens within the path's box grown by the reach and the feather: work there,
+    # not over a whole 4K frame with a kernel of hundreds of pixels.
+    ys, xs = np.nonzero(path)
+    out = np.zeros(path.shape, dtype=np.float32)
+    if xs.size == 0:
+        return out
+    margin = grow + EDGE_PX + FEATHER_PX + 2
+    y0, x0 = max(0, int(ys.min()) - margin), max(0, int(xs.min()) - margin)
+    y1, x1 = int(ys.max()) + margin + 1, int(xs.max()) + margin + 1
+    window = (slice(y0, y1), slice(x0, x1))
+    # A distance transform, not a dilation: its cost does not grow with the reach.
+    near = cv2.distanceTransform((~path[window]).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) <= grow
+    region = (path[window] | (connected[window] & near)).astype(np.uint8)
     # The streak's antialiased edge lies below ``level``: grow over it before the feather starts.
-    region = cv2.dilate(region, np.ones((2 * EDGE_PX + 1,) * 2, np.uint8))
-    return _feathered(region)
+    region = cv2.dilate(
+        region, np.ones((2 * EDGE_PX + 1,) * 2, np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0
+    )
+    out[window] = _feathered(region)
+    return out
 
 
 def _feathered(region: np.ndarray) -> np.ndarray:
