@@ -95,15 +95,15 @@ class _Sums:
         }
 
 
-def half_fit(clip: SyntheticClip, index: int) -> FrameResult:
-    """A fit with the true mesh and texture whose path covers the first half of frame
+def partial_fit(clip: SyntheticClip, index: int, share: float) -> FrameResult:
+    """A fit with the true mesh and texture whose path covers the first ``share`` of frame
     ``index``'s streak: what a fit of the fragment a partial detection saw renders."""
     truth, mesh = clip.truth[index], clip.scene.mesh
     motion = Motion(
         torch.tensor(truth.motion.x0, dtype=torch.float32),
-        0.5 * torch.tensor(truth.motion.dx, dtype=torch.float32),
+        share * torch.tensor(truth.motion.dx, dtype=torch.float32),
         torch.tensor(truth.motion.rotation, dtype=torch.float32),
-        0.5 * torch.tensor(truth.motion.omega, dtype=torch.float32),
+        share * torch.tensor(truth.motion.omega, dtype=torch.float32),
     )
     texture = torch.from_numpy(mesh.texture).permute(2, 0, 1).float() / 255
     state = ObjectState(mesh.vertices, mesh.topology, texture, motion)
@@ -117,7 +117,7 @@ def half_fit(clip: SyntheticClip, index: int) -> FrameResult:
 
 def ghost_scenario(spec: ClipSpec, config: Config) -> tuple[dict[str, float], dict[str, float]]:
     """Process the clip ``spec`` makes and measure the ghosts of its fitted frames' sub-frames,
-    and of a fit of half of every streak (:func:`half_fit`)."""
+    and of a fit of half of every streak (:func:`partial_fit`)."""
     clip = generate_clip(spec)
     config = dataclasses.replace(
         config,
@@ -133,7 +133,7 @@ def ghost_scenario(spec: ClipSpec, config: Config) -> tuple[dict[str, float], di
             path, truth = frame_path(out, frame.index), clip.truth[frame.index]
             if not truth.present:
                 continue
-            halves.add(frame, half_fit(clip, frame.index), truth, clip.camera, n, config)
+            halves.add(frame, partial_fit(clip, frame.index, 0.5), truth, clip.camera, n, config)
             if path.is_file():
                 fits.add(frame, load_result(path), truth, clip.camera, n, config)
     return fits.row(len(clip.frames)), halves.row(len(clip.frames))

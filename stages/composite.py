@@ -139,6 +139,16 @@ def object_radius(state: ObjectState, camera: PinholeCamera) -> float:
     return float(camera.fy * state.vertices.norm(dim=-1).max() / depth.min())
 
 
+def fitted_region(
+    state: ObjectState, camera: PinholeCamera, difference: np.ndarray, detect: DetectConfig
+) -> np.ndarray:
+    """(H, W) float32 :func:`object_region` weights of ``state``'s object in ``camera``'s image,
+    whose ||I - B|| is ``difference``: its path and the streak connected to it."""
+    radius = object_radius(state, camera)
+    path = path_mask(state.motion, radius, camera)
+    return object_region(path, difference, weak_level(difference, detect), REGION_REACH * radius)
+
+
 def fit_quality(
     state: ObjectState,
     image: torch.Tensor,
@@ -149,9 +159,6 @@ def fit_quality(
 ) -> float:
     """:func:`explained` of ``state`` on one image: (3, h, w) ``image`` and ``background``
     float32 in [0, 1] that ``camera`` renders (a fit's crop), over the object's region there."""
-    difference = difference_image(image, background)
-    radius = object_radius(state, camera)
-    path = path_mask(state.motion, radius, camera)
-    region = object_region(path, difference, weak_level(difference, detect), REGION_REACH * radius)
+    region = fitted_region(state, camera, difference_image(image, background), detect)
     blurred = state.render_blurred(camera, background, BLUR_POSES, render)
     return explained(image, background, blurred, torch.from_numpy(region).to(image.device))

@@ -47,8 +47,8 @@ from sfb_video.run_folder import (
 )
 from sfb_video.video import VideoWriter
 from stages.background import FrameWithBackground
-from stages.composite import BLUR_POSES, REGION_REACH, explained, object_radius, object_region, path_mask, region_box
-from stages.detect import difference_image, threshold_difference, weak_level
+from stages.composite import BLUR_POSES, explained, fitted_region, region_box
+from stages.detect import difference_image, threshold_difference
 from stages.joint import Window, frame_windows, with_joint
 from stages.track import FrameStatus
 
@@ -148,9 +148,7 @@ def render_frame(
     """
     if difference is None:
         difference = difference_image(frame.pixels, frame.background_pixels)
-    radius = object_radius(result.state, camera)
-    path = path_mask(result.state.motion, radius, camera)
-    region = object_region(path, difference, weak_level(difference, config.detect), REGION_REACH * radius)
+    region = fitted_region(result.state, camera, difference, config.detect)
     box = region_box(region, streak_box(result, camera))
     x, y, w, h = box
     scale = min(1.0, config.render.export_max_width / w)

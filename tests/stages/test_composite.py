@@ -9,10 +9,8 @@ import numpy as np
 import pytest
 import torch
 
+from benchmarks.composite import partial_fit
 from sfb_video.config import load_config
-from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.model.motion import Motion
-from sfb_video.model.scene import ObjectState
 from sfb_video.results import FrameResult
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip
 from stages import composite
@@ -30,24 +28,6 @@ def clip() -> SyntheticClip:
         size_px_range=(18.0, 20.0), speed_range=(2.5, 3.0), noise_sigma=0.0, seed=3,
     )  # fmt: skip
     return generate_clip(spec)
-
-
-def _result(clip: SyntheticClip, share: float) -> FrameResult:
-    """A fit with the true mesh and texture whose path covers the first ``share`` of the streak
-    (a fit of the fragment a partial detection saw)."""
-    truth, mesh = clip.truth[0], clip.scene.mesh
-    motion = Motion(
-        torch.tensor(truth.motion.x0, dtype=torch.float32),
-        share * torch.tensor(truth.motion.dx, dtype=torch.float32),
-        torch.tensor(truth.motion.rotation, dtype=torch.float32),
-        share * torch.tensor(truth.motion.omega, dtype=torch.float32),
-    )
-    texture = torch.from_numpy(mesh.texture).permute(2, 0, 1).float() / 255
-    state = ObjectState(mesh.vertices, mesh.topology, texture, motion)
-    x, y, w, h = truth.bbox
-    box = (x, y, max(1, round(w * share)), h)
-    camera: PinholeCamera = clip.camera
-    return FrameResult(0, box, box, camera, state, "cold", "sphere", {"image": 0.0}, [], 0.0)
 
 
 def _frame(clip: SyntheticClip) -> FrameWithBackground:
@@ -80,7 +60,7 @@ def _ghost(clip: SyntheticClip, result: FrameResult) -> float:
 
 
 def test_the_input_streak_is_not_left_beside_a_fit_of_part_of_it(clip: SyntheticClip) -> None:
-    assert _ghost(clip, _result(clip, 0.5)) < 0.1  # measured 0.0x
+    assert _ghost(clip, partial_fit(clip, 0, 0.5)) < 0.1  # measured 0.0x
 
 
 def test_the_ghost_measure_sees_a_streak_left_in_the_composite(
@@ -88,7 +68,7 @@ def test_the_ghost_measure_sees_a_streak_left_in_the_composite(
 ) -> None:
     # Only the model's own path replaced (as the crop box alone did before): the ghost stays.
     monkeypatch.setattr(composite, "hysteresis", lambda difference, strong, level: np.zeros_like(strong))
-    assert _ghost(clip, _result(clip, 0.5)) > 0.25  # measured 0.38
+    assert _ghost(clip, partial_fit(clip, 0, 0.5)) > 0.25  # measured 0.38
 
 
 def test_outside_the_region_the_frame_is_kept_and_the_join_has_no_seam(clip: SyntheticClip) -> None:
@@ -96,7 +76,7 @@ def test_outside_the_region_the_frame_is_kept_and_the_join_has_no_seam(clip: Syn
     # A background that differs from the frame everywhere by 6 grey levels (a median off by a
     # lighting change): the old box showed as a rectangle; the region must blend into the frame.
     off = dataclasses.replace(frame, background_pixels=(frame.background_pixels.int() + 6).clamp(0, 255).byte())
-    sub = render_frame(off, _result(clip, 1.0), clip.camera, N, CONFIG).subframes[0].float()
+    sub = render_frame(off, partial_fit(clip, 0, 1.0), clip.camera, N, CONFIG).subframes[0].float()
     changed = (sub - frame.pixels.float()).abs().amax(0)
     region = changed > 0
     assert 0 < int(region.sum()) < 0.5 * region.numel()
@@ -110,6 +90,6 @@ def test_outside_the_region_the_frame_is_kept_and_the_join_has_no_seam(clip: Syn
 
 def test_explained_is_one_for_the_true_fit_and_low_for_a_fragment(clip: SyntheticClip) -> None:
     frame = _frame(clip)
-    whole = render_frame(frame, _result(clip, 1.0), clip.camera, N, CONFIG).explained
-    half = render_frame(frame, _result(clip, 0.5), clip.camera, N, CONFIG).explained
+    whole = render_frame(frame, partial_fit(clip, 0, 1.0), clip.camera, N, CONFIG).explained
+    half = render_frame(frame, partial_fit(clip, 0, 0.5), clip.camera, N, CONFIG).explained
     assert whole > 0.75 and half < 0.3  # measured 0.83 and -0.07, whatever the TSR factor
