@@ -323,6 +323,10 @@ class DetectConfig(_Checked):
     gate: float = bounded(4.0, gt=0)
     """A tracked object is looked for within this many object diameters of where its motion
     predicts it; a blob further away starts a new track."""
+    colour_scale: float = bounded(0.05, gt=0)
+    """A tracked object's blob is preferred by its colour too: a blob whose chromaticity
+    (r, g, b summing to 1) lies this far from the track's counts half as much (0.05 separates
+    a yellow ball from skin, about 0.2 away, and from a grey wall's shadow, about 0.08)."""
 
 
 @dataclass(frozen=True)

@@ -35,21 +35,24 @@ class Detection:
         mask: (H, W) bool, the blob.
         others: how many other blobs could have been the object (at least a quarter of its
             area, within the track's gate): another fast mover, which is not tracked.
+        colour: the blob's chromaticity (:func:`blob_colour`), when the frame was given.
     """
 
     index: int
     box: Box
     mask: torch.Tensor
     others: int = 0
+    colour: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
 class Prediction:
     """Where a tracked object should appear: the (u, v) pixel centre of its next exposure's
-    streak, and its apparent diameter in pixels."""
+    streak, its apparent diameter in pixels, and the chromaticity its track's last blob had."""
 
     centre: tuple[float, float]
     diameter: float
+    colour: tuple[float, float, float] | None = None
 
 
 def _opened(mask: np.ndarray, config: DetectConfig) -> torch.Tensor:
@@ -260,16 +263,42 @@ def _blob_stats(mask: np.ndarray, labels: np.ndarray, count: int) -> tuple[np.nd
     return stats, centroids
 
 
+def blob_colour(image: np.ndarray, background: np.ndarray, where: np.ndarray) -> tuple[float, float, float]:
+    """The chromaticity (r, g, b summing to 1) of the quarter of a blob's pixels that differ
+    most from the background: nearest the object's own colour, where a streak's fainter parts
+    are mostly background.
+
+    Args:
+        image, background: (3, H, W) the frame and its background.
+        where: (H, W) bool, the blob.
+    """
+    pixels = image[:, where].astype(np.float32)
+    change = np.linalg.norm(pixels - background[:, where].astype(np.float32), axis=0)
+    mean = pixels[:, change >= np.quantile(change, 0.75)].mean(1)
+    r, g, b = (float(v) for v in mean / max(float(mean.sum()), 1e-6))
+    return r, g, b
+
+
 @timed("detect")
 def choose_blob(
-    index: int, moving: torch.Tensor, prediction: Prediction | None, config: DetectConfig
+    index: int,
+    moving: torch.Tensor,
+    prediction: Prediction | None,
+    config: DetectConfig,
+    frame: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> Detection | None:
     """The FMO among the blobs of a frame's ``moving`` mask (:func:`moving_mask`), or None.
 
     Split from :func:`detect` so that a tracker trying several predictions on one frame runs
-    the slow-mover test once.
+    the slow-mover test once. With the ``frame`` (its (3, H, W) pixels and background), the
+    detection carries its blob's colour, and a prediction's colour (the track's) weighs blobs.
     """
     count, labels, stats, centroids = blobs(moving.cpu().numpy().astype(bool), config.merge_px, config.min_area_px)
+    pixels = None if frame is None else tuple(t.cpu().numpy() for t in frame)
+
+    def colour(label: int) -> tuple[float, float, float] | None:
+        return None if pixels is None else blob_colour(*pixels, labels == label)
+
     min_area = config.min_area_px
     if prediction is not None:
         min_area = max(min_area, config.min_fill * math.pi / 4 * prediction.diameter**2)
@@ -288,6 +317,11 @@ def choose_blob(
             # Nearness alone would pick a speck or a shred of a slow mover next to a poor
             # prediction over the real streak a little further away; size counts too.
             score = area / (1 + (distance / max(prediction.diameter, 1.0)) ** 2)
+            if prediction.colour is not None and pixels is not None:
+                # A shred of an arm or a shadow of the wall near a poor prediction is another
+                # colour than the track's object.
+                apart = math.dist(colour(label), prediction.colour)  # type: ignore[arg-type]
+                score /= 1 + (apart / config.colour_scale) ** 2
         candidates.append(label)
         if best is None or score > best[0]:
             best = (score, label)
@@ -295,4 +329,4 @@ def choose_blob(
         return None
     x, y, w, h = (int(v) for v in stats[best[1], :4])
     others = sum(k != best[1] and stats[k, 4] >= stats[best[1], 4] / 4 for k in candidates)
-    return Detection(index, (x, y, w, h), torch.from_numpy(labels == best[1]), others)
+    return Detection(index, (x, y, w, h), torch.from_numpy(labels == best[1]), others, colour(best[1]))

@@ -142,7 +142,7 @@ def with_neighbours(
 
 
 def follow(
-    index: int,
+    frame: FrameWithBackground,
     mask: torch.Tensor,
     neighbours: list[Neighbour],
     previous: FrameResult | None,
@@ -150,13 +150,15 @@ def follow(
     camera: PinholeCamera,
     config: Config,
     earlier: FrameResult | None = None,
+    colour: tuple[float, float, float] | None = None,
 ) -> tuple[Detection | None, FrameResult | None]:
-    """Find the object of frame ``index``, near where the track's last frame predicts it.
+    """Find the object of ``frame``, near where the track's last frame predicts it.
 
     The prediction continues ``previous``'s motion (turning as it turned from ``earlier``, the
     frame before it, where there is one); when its time direction is not known yet
     (``may_flip``: the first frame of a track), both directions are tried and the one whose
-    prediction lands nearer its detection is kept.
+    prediction lands nearer its detection is kept. Blobs of the track's ``colour`` (the
+    chromaticity of its last blob) are preferred.
 
     Returns:
         the detection (None when there is no object) and ``previous`` in the direction that
@@ -165,9 +167,11 @@ def follow(
     options = [] if previous is None else [previous, previous.reversed()] if may_flip else [previous]
     moving = moving_mask(mask, neighbours, config.detect)
     best: tuple[float, Detection, FrameResult] | None = None
+    pixels = (frame.pixels, frame.background_pixels)
     for option in options:
-        prediction = predict(continued(option, earlier, index, config.video.exposure_fraction), camera)
-        found = choose_blob(index, moving, prediction, config.detect)
+        prediction = predict(continued(option, earlier, frame.index, config.video.exposure_fraction), camera)
+        prediction = dataclasses.replace(prediction, colour=colour)
+        found = choose_blob(frame.index, moving, prediction, config.detect, pixels)
         if found is not None:
             x, y, w, h = found.box
             distance = math.hypot(x + w / 2 - prediction.centre[0], y + h / 2 - prediction.centre[1])
@@ -175,7 +179,7 @@ def follow(
                 best = (distance, found, option)
     if best is not None:
         return best[1], best[2]
-    return choose_blob(index, moving, None, config.detect), None
+    return choose_blob(frame.index, moving, None, config.detect, pixels), None
 
 
 def _others_note(detection: Detection, followed: FrameResult | None) -> str:
@@ -184,6 +188,20 @@ def _others_note(detection: Detection, followed: FrameResult | None) -> str:
         return ""
     chosen = "the one the track predicts" if followed is not None else "the largest"
     return f"{detection.others} other moving object(s) seen; one object is tracked: {chosen}"
+
+
+COLOUR_MEMORY = 0.7
+"""A track's colour is this much its past frames' and the rest its newest blob's: one frame whose
+blob took in a piece of the arm holding the ball does not make the track look for skin."""
+
+
+def _blend(
+    track: tuple[float, float, float] | None, blob: tuple[float, float, float] | None
+) -> tuple[float, float, float] | None:
+    if track is None or blob is None:
+        return blob
+    r, g, b = (COLOUR_MEMORY * t + (1 - COLOUR_MEMORY) * c for t, c in zip(track, blob, strict=True))
+    return r, g, b
 
 
 def track_and_fit(
@@ -207,13 +225,14 @@ def track_and_fit(
     statuses: list[FrameStatus] = []
     previous: FrameResult | None = None  # the last fitted frame of the current track
     earlier: FrameResult | None = None  # the one before it on the track
+    colour: tuple[float, float, float] | None = None  # the chromaticity of its blobs
     track_length, tracks = 0, 0
     for frame, mask, neighbours in with_neighbours(frames, config):
         if previous is not None and frame.index - previous.index != 1:
             previous, track_length = None, 0
         earlier = earlier if track_length >= 2 else None
         detection, followed = follow(
-            frame.index, mask, neighbours, previous, track_length == 1, camera, config, earlier
+            frame, mask, neighbours, previous, track_length == 1, camera, config, earlier, colour
         )
         if followed is None:
             previous, track_length = None, 0  # nothing near the prediction: a new track
@@ -243,6 +262,7 @@ def track_and_fit(
                     save_result(folder, before)
             if result is not loaded:
                 save_result(folder, result)
+            colour = _blend(colour if track_length else None, detection.colour if detection is not None else None)
             earlier, previous, track_length = previous, result, track_length + 1
         else:
             previous, track_length = None, 0

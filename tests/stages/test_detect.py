@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from sfb_video.config import load_config
-from stages.detect import Neighbour, Prediction, detect, difference_mask
+from stages.detect import Neighbour, Prediction, blob_colour, choose_blob, detect, difference_mask
 
 CONFIG = load_config("default").detect
 
@@ -69,6 +69,27 @@ def test_a_tracked_object_is_looked_for_near_its_prediction() -> None:
     assert detect(0, mask, [], near_small, CONFIG).box == small
     far_away = Prediction((300.0, 300.0), 6.0)
     assert detect(0, mask, [], far_away, CONFIG) is None
+
+
+def test_a_tracked_object_is_preferred_by_its_colour() -> None:
+    # A yellow-green ball's streak a little further from a poor prediction than a skin-coloured
+    # shred of the arm of the same size, on a grey wall.
+    background = torch.full((3, 60, 80), 128, dtype=torch.uint8)
+    image = background.clone()
+    ball, arm = (45, 20, 20, 8), (5, 20, 20, 8)
+    for (x, y, w, h), rgb in ((ball, (190, 210, 90)), (arm, (200, 140, 110))):
+        image[:, y : y + h, x : x + w] = torch.tensor(rgb, dtype=torch.uint8)[:, None, None]
+    mask = _mask(ball, arm)
+    green = blob_colour(image.numpy(), background.numpy(), _mask(ball).numpy())
+    assert abs(sum(green) - 1) < 1e-5 and green[1] > green[0] > green[2]
+    prediction = Prediction((30.0, 24.0), 10.0)  # 15 px from the arm's centre, 25 from the ball's
+    assert choose_blob(0, mask, prediction, CONFIG).box == arm  # where nearness alone leads
+    coloured = Prediction((30.0, 24.0), 10.0, green)
+    assert choose_blob(0, mask, coloured, CONFIG, (image, background)).box == ball
+    # Without the track's colour, or without the frame's pixels, nothing changes.
+    assert choose_blob(0, mask, prediction, CONFIG, (image, background)).box == arm
+    found = choose_blob(0, mask, coloured, CONFIG)
+    assert found.box == arm and found.colour is None
 
 
 def test_a_faint_tail_is_kept_with_its_strong_part_and_a_faint_blob_alone_is_not() -> None:
