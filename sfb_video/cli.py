@@ -35,6 +35,8 @@ NOTHING_FOUND = 3
 """Exit status of a run that finished but found no moving object in any frame."""
 OUTPUT_FAILED = 4
 """Exit status of a run whose outputs could not be written (full disk, folder gone, no permission)."""
+CLIPS_FAILED = 5
+"""Exit status of a batch in which at least one clip failed (the others finished; see batch.csv)."""
 INTERRUPTED = 130
 
 
@@ -259,6 +261,95 @@ def cmd_process(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_batch(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from sfb_video.batch import FAILED, NO_OBJECT, BatchPlan, ClipOptions, gather_clips, plan_jobs, run_batch, table
+    from sfb_video.cluster import INSTALL, Resources, ray_installed
+    from stages.read import probe
+
+    overrides = list(args.set) + ([f"video.tsr={args.tsr}"] if args.tsr is not None else [])
+    config = load_config(args.config, overrides)
+    if args.cpus_per_clip is not None and args.cpus_per_clip < 1:
+        raise SfbError(f"--cpus-per-clip must be at least 1, got {args.cpus_per_clip}")
+    if args.gpus_per_clip < 0:
+        raise SfbError(f"--gpus-per-clip must be at least 0, got {args.gpus_per_clip}")
+    if args.max_retries < 0:
+        raise SfbError(f"--max-retries must be at least 0, got {args.max_retries}")
+    clips, notes = gather_clips(args.inputs)
+    if not clips:
+        raise SfbError("no clips to process: " + "; ".join(notes))
+    use_ray = ray_installed()
+    if args.ray_address is not None and not use_ray:
+        raise SfbError(f"--ray-address needs Ray, which is not installed; {INSTALL}")
+    local = args.ray_address is None
+    if use_ray and local and args.gpus_per_clip > 0 and not torch.cuda.is_available():
+        raise SfbError("--gpus-per-clip: torch sees no GPU on this machine, so a local Ray could run no clip")
+    say = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
+    for note in notes:
+        say(f"note: {note}")
+    if not ray_installed():
+        say(f"note: Ray is not installed: the {len(clips)} clip(s) run one after another here; {INSTALL} to go wider")
+    out = Path(args.out)
+    cpus = args.cpus_per_clip or (1 if use_ray else torch.get_num_threads())
+    plan = BatchPlan(
+        jobs=plan_jobs(clips, out),
+        options=ClipOptions(
+            config=config,
+            device=args.device,
+            masks=args.masks,
+            defmo_weights=None if args.defmo_weights is None else Path(args.defmo_weights).absolute(),
+            frames=parse_frames(args.frames),
+            frames_text=args.frames,
+            background=None if args.background is None else Path(args.background).absolute(),
+            focal_px=args.focal_px,
+            object_diameter=args.object_diameter,
+            overwrite=args.overwrite,
+        ),
+        out=out,
+        resources=Resources(cpus, args.gpus_per_clip),
+        max_retries=args.max_retries,
+        ray_address=None if args.ray_address == "local" else args.ray_address,
+        use_ray=use_ray,
+    )
+    total_frames = None
+    if args.frames is None:
+        counts = []
+        for job in plan.jobs:
+            try:
+                counts.append(probe(job.video, config.video).frame_count)
+            except (SfbError, OSError):
+                counts.append(0)
+        total_frames = None if None in counts else sum(counts)
+    hide = True if args.quiet else None  # None: no bars when stderr is not a terminal (logs, CI)
+    with (
+        tqdm(total=len(plan.jobs), desc="clips", unit="clip", disable=hide, position=0) as clips_bar,
+        tqdm(total=total_frames, desc="frames", unit="frame", disable=hide, position=1) as frames_bar,
+    ):
+
+        def on_row(_: int, row: object) -> None:
+            clips_bar.update(1)
+
+        def on_frames(done: int) -> None:
+            frames_bar.update(done - frames_bar.n)
+
+        def on_retry(job: object, why: str) -> None:
+            clips_bar.write(f"{printable(job.name)}: its worker died ({why}); starting it again")  # type: ignore[attr-defined]
+
+        rows = run_batch(plan, on_row, on_frames, on_retry)
+    failed = [r for r in rows if r.status == FAILED]
+    if not args.quiet:
+        print(table(rows))
+        empty = sum(r.status == NO_OBJECT for r in rows)
+        print(
+            f"wrote {printable(str(out))}/: one run folder per clip, batch.csv, batch.json; "
+            f"{len(rows) - len(failed) - empty} done, {empty} without a moving object, {len(failed)} failed"
+        )
+    for row in failed:
+        print(f"sfb-video: error: {printable(row.clip)}: {row.error}", file=sys.stderr)
+    return CLIPS_FAILED if failed else 0
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     from sfb_video.run_folder import saved_frames
     from stages.novel_views import write_novel_views
@@ -333,9 +424,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
             min(s.num_frames, args.max_frames or s.num_frames) * (2 if both and m == "joint" else 1) for s, m in runs
         )
         save_config(run.work / CONFIG, config)
+        note = f"Sub-frame masks: {masks.name} ({masks.reason}).\n\n"
         # disable=None: no bar when stderr is not a terminal (logs, CI).
         with tqdm(total=frames, desc="eval", unit="frame", disable=True if args.quiet else None) as bar:
-            for done, (sequence, mode) in enumerate(runs, start=1):
+            if args.ray_address is not None:
+                rows = _eval_on_ray(args, config, runs, both, bar)
+                write_tables(run.work, rows, note)
+            for done, (sequence, mode) in enumerate(runs if args.ray_address is None else [], start=1):
                 bar.set_postfix(sequence=sequence.name, mode=mode)
                 rows += run_sequence(
                     sequence,
@@ -347,13 +442,39 @@ def cmd_eval(args: argparse.Namespace) -> int:
                     masks=masks,
                     with_video=both,
                 )
-                note = "" if done == len(runs) else f"Incomplete: {done} of {len(runs)} sequence runs finished.\n\n"
-                write_tables(run.work, rows, f"{note}Sub-frame masks: {masks.name} ({masks.reason}).\n\n")
+                left = "" if done == len(runs) else f"Incomplete: {done} of {len(runs)} sequence runs finished.\n\n"
+                write_tables(run.work, rows, left + note)
         run.finish()
     if not args.quiet:
         print(markdown(summarise(rows)))
         print(f"wrote {printable(str(out))}/: table.md, sequences.csv, frames.csv, config.yaml")
     return 0
+
+
+def _eval_on_ray(args: argparse.Namespace, config: Config, runs: list, both: bool, bar: typing.Any) -> list:
+    """The rows of an evaluation's ``runs`` fitted on Ray, in the order a local run gives them."""
+    from sfb_video.cluster import Outcome, Resources, connected, run_on_ray
+    from sfb_video.evaluation.jobs import plan_jobs, run_job
+
+    if args.cpus_per_task < 1:
+        raise SfbError(f"--cpus-per-task must be at least 1, got {args.cpus_per_task}")
+    jobs = plan_jobs(runs, args.max_frames)
+    results: list[list | None] = [None] * len(jobs)
+    errors: list[str] = []
+
+    def done(i: int, outcome: Outcome) -> None:
+        if outcome.error:
+            errors.append(f"{jobs[i].sequence.name} ({jobs[i].mode}): {outcome.error}")
+            return
+        results[i] = outcome.value
+        bar.update(len(outcome.value))
+
+    args_of = [(job, config, args.device, args.masks, _defmo_weights(args), both) for job in jobs]
+    with connected(None if args.ray_address == "local" else args.ray_address):
+        run_on_ray(run_job, args_of, Resources(args.cpus_per_task, args.gpus_per_task), args.max_retries, done)
+    if errors:
+        raise SfbError(f"{len(errors)} evaluation job(s) failed; the first: {errors[0]}")
+    return [row for rows in results for row in rows or []]
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -403,6 +524,29 @@ def build_parser() -> argparse.ArgumentParser:
     process.add_argument("--object-diameter", type=float, help="the object's diameter in metres, for metric output")
     process.add_argument("--focal-px", type=float, help="focal length in pixels (default: from camera.fov_y_deg)")
     process.set_defaults(func=cmd_process)
+    batch = sub.add_parser(
+        "batch", parents=[common], help="process many clips, one run folder each, in parallel on Ray"
+    )
+    batch.add_argument("inputs", nargs="+", metavar="INPUT", help="clips, folders of clips, or .txt lists of clips")
+    batch.add_argument("--out", default="runs", help="folder of the clips' run folders and batch.csv (default: runs)")
+    batch.add_argument("--tsr", type=int, help="sub-frames per frame in tsr.mp4 (default: video.tsr, 8)")
+    batch.add_argument("--frames", help="only frames START:STOP of every clip (as for process)")
+    batch.add_argument("--background", help="a background image instead of the running median (every clip)")
+    batch.add_argument("--object-diameter", type=float, help="the object's diameter in metres, for metric output")
+    batch.add_argument("--focal-px", type=float, help="focal length in pixels (default: from camera.fov_y_deg)")
+    batch.add_argument(
+        "--ray-address",
+        help="join a running Ray cluster (auto: the one `ray start` runs on this machine; HOST:PORT); "
+        "default: a local Ray sized to this machine",
+    )
+    batch.add_argument(
+        "--cpus-per-clip", type=int, help="CPUs (torch threads) per clip (default: 1 on Ray, all without it)"
+    )
+    batch.add_argument("--gpus-per-clip", type=float, default=0.0, help="GPUs per clip (e.g. 0.5: two clips a GPU)")
+    batch.add_argument(
+        "--max-retries", type=int, default=3, help="restarts of a clip whose worker died (killed, out of memory)"
+    )
+    batch.set_defaults(func=cmd_batch)
     base = argparse.ArgumentParser(add_help=False)
     base.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config field")
     base.add_argument("--quiet", action="store_true", help="print nothing on success")
@@ -430,6 +574,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     evaluate.add_argument("--sequence", action="append", help="only this sequence (repeatable)")
     evaluate.add_argument("--max-frames", type=int, help="only the first N frames of each sequence")
+    evaluate.add_argument(
+        "--ray-address",
+        help="fit the sequences (video, joint) or frames (per-frame) on Ray: local, auto or HOST:PORT",
+    )
+    evaluate.add_argument("--cpus-per-task", type=int, default=1, help="CPUs (torch threads) per job on Ray")
+    evaluate.add_argument("--gpus-per-task", type=float, default=0.0, help="GPUs per job on Ray")
+    evaluate.add_argument("--max-retries", type=int, default=3, help="restarts of a job whose worker died")
     evaluate.set_defaults(func=cmd_eval)
     replay = sub.add_parser("replay", help="open a run's recording in the rerun viewer")
     replay.add_argument("run", help="a run folder or a .rrd file")
@@ -462,6 +613,7 @@ _INTERRUPTED = {
     "run the same command again to resume",
     "demo": "frames fitted so far are kept; run the same command again to resume",
     "eval": "a new output folder keeps the tables of the sequences finished so far; a replaced one stays as it was",
+    "batch": "clips finished so far are kept, and the frames fitted so far; run the same command again to resume",
 }
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from sfb_video.run_folder import (
     TRAJECTORY,
     RunFolder,
     open_run,
+    read_marker,
     saved_frames,
     window_path,
 )
@@ -255,8 +257,32 @@ def _frames_to_read(frames: range | None, frame_count: int | None) -> int | None
     return len(range(frames.start, min(frames.stop, frame_count)))
 
 
-def process_clip(options: ProcessOptions, config: Config, device: torch.device, quiet: bool = False) -> dict:
+def finished_summary(options: ProcessOptions, config: Config, device: torch.device) -> dict | None:
+    """The summary of the finished run in ``options.out`` when it is of this clip with this
+    config and mask source (the same fingerprint): a rerun with nothing to do. None otherwise."""
+    marker = read_marker(options.out)
+    if options.overwrite or marker is None or not marker.get("finished") or not options.video.is_file():
+        return None
+    masks = choose_masks(options.masks, options.defmo_weights, config.crop, device, log=None)
+    if marker.get("fingerprint") != _run_record(options, config, masks)["fingerprint"]:
+        return None
+    try:
+        return json.loads((options.out / SUMMARY).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def process_clip(
+    options: ProcessOptions,
+    config: Config,
+    device: torch.device,
+    quiet: bool = False,
+    on_frame: Callable[[FrameStatus], None] | None = None,
+) -> dict:
     """Run the pipeline on one clip into ``options.out`` and return its summary.
+
+    ``on_frame`` is told each frame's status as soon as the frame is done (a resumed run's
+    saved frames included).
 
     Raises:
         SfbError: bad input, bad options, an unusable output folder.
@@ -272,7 +298,7 @@ def process_clip(options: ProcessOptions, config: Config, device: torch.device, 
     with open_run(
         options.out, "process", record, overwrite=options.overwrite, keep=lambda f: bool(saved_frames(f))
     ) as run:
-        summary = _process(run, options, config, info, camera, device, quiet, masks)
+        summary = _process(run, options, config, info, camera, device, quiet, masks, on_frame)
         run.finish()
     return summary
 
@@ -286,6 +312,7 @@ def _process(
     device: torch.device,
     quiet: bool,
     masks: MaskSource,
+    on_frame: Callable[[FrameStatus], None] | None = None,
 ) -> dict:
     save_config(run.work / CONFIG, config)
     if run.resumed and not quiet:
@@ -299,6 +326,8 @@ def _process(
 
         def report(status: FrameStatus, result: FrameResult | None) -> None:
             bar.update(1)
+            if on_frame is not None:
+                on_frame(status)
             if result is not None:
                 bar.set_postfix(frame=status.index, start=result.start, L_I=f"{result.losses['image']:.4f}")
 

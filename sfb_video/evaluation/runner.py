@@ -142,16 +142,21 @@ def run_sequence(
     on_frame: Callable[[FrameRow], None] | None = None,
     masks: MaskSource | None = None,
     with_video: bool = False,
+    first: int = 0,
 ) -> list[FrameRow]:
     """Fit and score the frames of ``sequence`` in ``mode`` (one of ``MODES``).
 
     Args:
+        first: skip the frames before this one (``per-frame`` mode only, whose frames are fitted
+            each on its own: how a distributed evaluation splits a sequence).
         masks: where the fits' sub-frame masks come from (None: the difference mask).
         with_video: in ``joint`` mode, also score its warm-started fits as the ``video`` mode's
             rows (the same fits: one run gives both modes).
         max_frames: stop after this many frames (the first ones), for quick looks.
         on_frame: called with each frame's row as soon as it is scored (progress).
     """
+    if first and mode != "per-frame":
+        raise ValueError("only the per-frame mode can start in the middle of a sequence")
     config = mode_config(config, mode)
     clip: SyntheticClip | None = getattr(sequence, "clip", None)
     if clip is not None and getattr(sequence, "told_exposure", True):
@@ -164,9 +169,11 @@ def run_sequence(
     previous: FrameResult | None = None
     track_length, tracks = 0, 0
     camera: PinholeCamera | None = None
-    for frame in sequence.frames():
-        if max_frames is not None and len(statuses) >= max_frames:
+    for position, frame in enumerate(sequence.frames()):
+        if max_frames is not None and position >= max_frames:
             break
+        if position < first:
+            continue
         height, width = frame.image.shape[:2]
         camera = clip.camera if clip is not None else PinholeCamera.from_fov(width, height, config.camera.fov_y_deg)
         start = time.perf_counter()
