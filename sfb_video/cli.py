@@ -428,7 +428,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
         # disable=None: no bar when stderr is not a terminal (logs, CI).
         with tqdm(total=frames, desc="eval", unit="frame", disable=True if args.quiet else None) as bar:
             if args.ray_address is not None:
-                rows = _eval_on_ray(args, config, runs, both, bar)
+                rows, errors = _eval_on_ray(args, config, runs, both, bar)
+                if errors:
+                    left = f"Incomplete: {len(errors)} job(s) failed; the first: {errors[0]}.\n\n"
+                    write_tables(run.work, rows, left + note)
+                    raise SfbError(f"{len(errors)} evaluation job(s) failed; the first: {errors[0]}")
                 write_tables(run.work, rows, note)
             for done, (sequence, mode) in enumerate(runs if args.ray_address is None else [], start=1):
                 bar.set_postfix(sequence=sequence.name, mode=mode)
@@ -451,8 +455,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
-def _eval_on_ray(args: argparse.Namespace, config: Config, runs: list, both: bool, bar: typing.Any) -> list:
-    """The rows of an evaluation's ``runs`` fitted on Ray, in the order a local run gives them."""
+def _eval_on_ray(
+    args: argparse.Namespace, config: Config, runs: list, both: bool, bar: typing.Any
+) -> tuple[list, list[str]]:
+    """The rows of an evaluation's ``runs`` fitted on Ray, in the order a local run gives them,
+    and the errors of the jobs that failed (their rows are missing)."""
     from sfb_video.cluster import Outcome, Resources, connected, run_on_ray
     from sfb_video.evaluation.jobs import plan_jobs, run_job
 
@@ -472,9 +479,7 @@ def _eval_on_ray(args: argparse.Namespace, config: Config, runs: list, both: boo
     args_of = [(job, config, args.device, args.masks, _defmo_weights(args), both) for job in jobs]
     with connected(None if args.ray_address == "local" else args.ray_address):
         run_on_ray(run_job, args_of, Resources(args.cpus_per_task, args.gpus_per_task), args.max_retries, done)
-    if errors:
-        raise SfbError(f"{len(errors)} evaluation job(s) failed; the first: {errors[0]}")
-    return [row for rows in results for row in rows or []]
+    return [row for rows in results for row in rows or []], errors
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
