@@ -264,7 +264,7 @@ def cmd_process(args: argparse.Namespace) -> int:
 def cmd_batch(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from sfb_video.batch import FAILED, NO_OBJECT, BatchPlan, ClipOptions, gather_clips, plan_jobs, run_batch, table
+    from sfb_video import batch
     from sfb_video.cluster import INSTALL, Resources, ray_installed
     from stages.read import probe
 
@@ -276,7 +276,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         raise SfbError(f"--gpus-per-clip must be at least 0, got {args.gpus_per_clip}")
     if args.max_retries < 0:
         raise SfbError(f"--max-retries must be at least 0, got {args.max_retries}")
-    clips, notes = gather_clips(args.inputs)
+    clips, notes = batch.gather_clips(args.inputs)
     if not clips:
         raise SfbError("no clips to process: " + "; ".join(notes))
     use_ray = ray_installed()
@@ -292,9 +292,9 @@ def cmd_batch(args: argparse.Namespace) -> int:
         say(f"note: Ray is not installed: the {len(clips)} clip(s) run one after another here; {INSTALL} to go wider")
     out = Path(args.out)
     cpus = args.cpus_per_clip or (1 if use_ray else torch.get_num_threads())
-    plan = BatchPlan(
-        jobs=plan_jobs(clips, out),
-        options=ClipOptions(
+    plan = batch.BatchPlan(
+        jobs=batch.plan_jobs(clips, out),
+        options=batch.ClipOptions(
             config=config,
             device=args.device,
             masks=args.masks,
@@ -327,20 +327,20 @@ def cmd_batch(args: argparse.Namespace) -> int:
         tqdm(total=total_frames, desc="frames", unit="frame", disable=hide, position=1) as frames_bar,
     ):
 
-        def on_row(_: int, row: object) -> None:
+        def on_row(_: int, row: batch.ClipRow) -> None:
             clips_bar.update(1)
 
         def on_frames(done: int) -> None:
             frames_bar.update(done - frames_bar.n)
 
-        def on_retry(job: object, why: str) -> None:
-            clips_bar.write(f"{printable(job.name)}: its worker died ({why}); starting it again")  # type: ignore[attr-defined]
+        def on_retry(job: batch.ClipJob, why: str) -> None:
+            clips_bar.write(f"{printable(job.name)}: its worker died ({why}); starting it again")
 
-        rows = run_batch(plan, on_row, on_frames, on_retry)
-    failed = [r for r in rows if r.status == FAILED]
+        rows = batch.run_batch(plan, on_row, on_frames, on_retry)
+    failed = [r for r in rows if r.status == batch.FAILED]
     if not args.quiet:
-        print(table(rows))
-        empty = sum(r.status == NO_OBJECT for r in rows)
+        print(batch.table(rows))
+        empty = sum(r.status == batch.NO_OBJECT for r in rows)
         print(
             f"wrote {printable(str(out))}/: one run folder per clip, batch.csv, batch.json; "
             f"{len(rows) - len(failed) - empty} done, {empty} without a moving object, {len(failed)} failed"
