@@ -22,8 +22,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import torch
-
 from sfb_video.batch import DONE, BatchPlan, ClipOptions, plan_jobs, run_batch
 from sfb_video.cluster import Resources, connected
 from sfb_video.config import Config, load_config
@@ -73,13 +71,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         clips = write_clips(root / "clips", args.clips, args.frames, config)
-        threads = torch.get_num_threads()
         names = ("one process, one after another", "Ray, 1 worker", "Ray, 2 workers")
         runs: dict[str, list[tuple[float, float]]] = {name: [] for name in names}
         ray_starts = []
         for k in range(args.repeats):  # interleaved, so that a noisy minute hits every kind alike
             runs[names[0]].append(timed_batch(clips, root / f"sequential{k}", config, False, 1))
-            torch.set_num_threads(threads)
             started = time.perf_counter()
             with connected(None, 1):
                 pass

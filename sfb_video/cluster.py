@@ -51,15 +51,27 @@ def ray_installed() -> bool:
     return True
 
 
-def limit_threads(cpus: int) -> None:
-    """Make torch and numba use ``cpus`` threads: a job's share of a worker's cores."""
+@contextlib.contextmanager
+def limited_threads(cpus: int) -> Iterator[None]:
+    """Torch and numba use ``cpus`` threads (a job's share of a worker's cores) inside the
+    ``with`` block, and as many as before after it."""
     import torch
 
-    torch.set_num_threads(max(1, cpus))
-    with contextlib.suppress(ImportError, ValueError):
+    numba: Any = None
+    with contextlib.suppress(ImportError):
         import numba
-
+    # numba first: starting its threading layer sets OpenMP's thread count, torch's with it.
+    numba_before = None if numba is None else numba.get_num_threads()
+    if numba is not None:
         numba.set_num_threads(max(1, min(cpus, numba.config.NUMBA_NUM_THREADS)))
+    before = torch.get_num_threads()
+    torch.set_num_threads(max(1, cpus))
+    try:
+        yield
+    finally:
+        if numba is not None:
+            numba.set_num_threads(numba_before)
+        torch.set_num_threads(before)
 
 
 @contextlib.contextmanager
@@ -169,8 +181,8 @@ def run_here(
 
 
 def _limited(function: Callable[..., Any], cpus: int, *args: Any) -> Any:
-    limit_threads(cpus)
-    return function(*args)
+    with limited_threads(cpus):
+        return function(*args)
 
 
 def _one_line(exc: BaseException) -> str:
