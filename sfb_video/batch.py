@@ -145,16 +145,13 @@ def run_clip(job: ClipJob, options: ClipOptions, report: Callable[[str, int], No
     Args:
         report: called with the clip's name and the number of its frames done so far.
     """
-    from sfb_video.cli import resolve_device, resolve_frames
+    from sfb_video.cli import check_video, resolve_device, resolve_frames
     from stages.process import ProcessOptions, finished_summary, process_clip
 
     started = time.perf_counter()
     row = ClipRow(job.name, str(job.video), str(job.out), FAILED)
     try:
-        if job.video.is_dir():
-            raise SfbError(f"{job.video} is a folder, not a video file")
-        if not job.video.exists():
-            raise SfbError(f"video not found: {job.video}")
+        check_video(job.video)
         device = resolve_device(options.device)
         process = ProcessOptions(
             video=job.video,
@@ -305,11 +302,12 @@ def run_batch(
         except RayTaskError as exc:
             raise SfbError(f"{exc.cause if exc.cause is not None else exc} (checked from a Ray worker)") from None
         write_report(plan.out, rows, record, finished=not rows)
-        jobs = [(job, plan.options, _FileReport(progress)) for job in plan.jobs]
+        reporter = _FileReport(progress)
+        jobs = [(job, plan.options, reporter) for job in plan.jobs]
 
         def poll() -> None:
             for i, job in enumerate(plan.jobs):
-                count = _FileReport(progress).read(job.name)
+                count = reporter.read(job.name)
                 if count is not None and count != frames_done[i]:
                     frame_report(job.name, count)
 

@@ -230,16 +230,26 @@ def _print_summary(out: Path, summary: dict) -> None:
     print("tsr.mp4, trajectory.csv, meshes/, recording.rrd (sfb-video replay), summary.json")
 
 
-def cmd_process(args: argparse.Namespace) -> int:
-    from stages.process import ProcessOptions, process_clip
-
+def _process_config(args: argparse.Namespace) -> Config:
+    """The config of ``process`` and ``batch``: the preset, ``--set`` and ``--tsr``."""
     overrides = list(args.set) + ([f"video.tsr={args.tsr}"] if args.tsr is not None else [])
-    config = load_config(args.config, overrides)
-    video = Path(args.video)
+    return load_config(args.config, overrides)
+
+
+def check_video(video: Path) -> None:
+    """Raise :class:`SfbError` unless ``video`` names a file (whether it decodes is the reader's)."""
     if video.is_dir():
         raise SfbError(f"{video} is a folder, not a video file")
     if not video.exists():
         raise SfbError(f"video not found: {video}")
+
+
+def cmd_process(args: argparse.Namespace) -> int:
+    from stages.process import ProcessOptions, process_clip
+
+    config = _process_config(args)
+    video = Path(args.video)
+    check_video(video)
     options = ProcessOptions(
         video=video,
         out=Path(args.out or f"runs/{video.stem}"),
@@ -268,8 +278,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     from sfb_video.cluster import INSTALL, Resources, ray_installed
     from stages.read import probe
 
-    overrides = list(args.set) + ([f"video.tsr={args.tsr}"] if args.tsr is not None else [])
-    config = load_config(args.config, overrides)
+    config = _process_config(args)
     if args.cpus_per_clip is not None and args.cpus_per_clip < 1:
         raise SfbError(f"--cpus-per-clip must be at least 1, got {args.cpus_per_clip}")
     if args.gpus_per_clip < 0:
@@ -288,7 +297,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     say = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
     for note in notes:
         say(f"note: {note}")
-    if not ray_installed():
+    if not use_ray:
         say(f"note: Ray is not installed: the {len(clips)} clip(s) run one after another here; {INSTALL} to go wider")
     out = Path(args.out)
     cpus = args.cpus_per_clip or (1 if use_ray else torch.get_num_threads())
@@ -434,7 +443,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
                     write_tables(run.work, rows, left + note)
                     raise SfbError(f"{len(errors)} evaluation job(s) failed; the first: {errors[0]}")
                 write_tables(run.work, rows, note)
-            for done, (sequence, mode) in enumerate(runs if args.ray_address is None else [], start=1):
+                runs = []  # all fitted on Ray
+            for done, (sequence, mode) in enumerate(runs, start=1):
                 bar.set_postfix(sequence=sequence.name, mode=mode)
                 rows += run_sequence(
                     sequence,

@@ -20,7 +20,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from sfb_video.checks import SfbError
+from sfb_video.checks import SfbError, printable
 
 INSTALL = "pip install 'sfb-video[cluster]'"
 
@@ -187,8 +187,6 @@ def _limited(function: Callable[..., Any], cpus: int, *args: Any) -> Any:
 
 def _one_line(exc: BaseException) -> str:
     """An error as one line: its message's first line, or its type where it has none."""
-    from sfb_video.checks import printable
-
     text = str(exc).strip()
     if isinstance(exc, SfbError):
         return printable(text)

@@ -12,6 +12,7 @@ the prediction; otherwise the largest blob wins.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -48,7 +49,7 @@ class Detection:
 @dataclass(frozen=True)
 class Prediction:
     """Where a tracked object should appear: the (u, v) pixel centre of its next exposure's
-    streak, its apparent diameter in pixels, and the chromaticity its track's last blob had."""
+    streak, its apparent diameter in pixels, and its track's chromaticity (of its blobs so far)."""
 
     centre: tuple[float, float]
     diameter: float
@@ -296,6 +297,7 @@ def choose_blob(
     count, labels, stats, centroids = blobs(moving.cpu().numpy().astype(bool), config.merge_px, config.min_area_px)
     pixels = None if frame is None else tuple(t.cpu().numpy() for t in frame)
 
+    @functools.cache  # the chosen blob's colour is needed again for its detection
     def colour(label: int) -> tuple[float, float, float] | None:
         return None if pixels is None else blob_colour(*pixels, labels == label)
 

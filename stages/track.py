@@ -158,7 +158,7 @@ def follow(
     frame before it, where there is one); when its time direction is not known yet
     (``may_flip``: the first frame of a track), both directions are tried and the one whose
     prediction lands nearer its detection is kept. Blobs of the track's ``colour`` (the
-    chromaticity of its last blob) are preferred.
+    chromaticity of its blobs so far) are preferred.
 
     Returns:
         the detection (None when there is no object) and ``previous`` in the direction that
