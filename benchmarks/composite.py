@@ -5,7 +5,7 @@
 Each scenario of :mod:`benchmarks.detect` that has one object (a generated 320x240 clip with
 ground truth) is written as a video and processed by the pipeline (single-frame fits, the
 difference mask); every fitted frame is then rendered into its sub-frames as ``tsr.mp4`` is
-(:func:`stages.export.render_frame`) and compared with the true sub-frames. The ghost of a
+(:func:`sfb_video.stages.export.render_frame`) and compared with the true sub-frames. The ghost of a
 sub-frame is the energy of |TSR sub-frame - true sub-frame| over the pixels the object's streak
 covers in the input frame but where the true object is not at that sub-frame's time: the
 input's streak left there shows as a ghost. Reported as a share of the same energy of the input
@@ -29,6 +29,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+from sfb_video.stages.background import with_backgrounds
+from sfb_video.stages.export import render_frame
+from sfb_video.stages.process import ProcessOptions, process_clip
+from sfb_video.stages.types import FrameWithBackground
 
 from benchmarks.detect import BASE, SCENARIOS
 from sfb_video.config import Config, load_config
@@ -39,9 +43,6 @@ from sfb_video.model.scene import ObjectState
 from sfb_video.results import FrameResult, load_result
 from sfb_video.run_folder import frame_path
 from sfb_video.synth import ClipSpec, FrameTruth, SyntheticClip, generate_clip
-from stages.background import FrameWithBackground, with_backgrounds
-from stages.export import render_frame
-from stages.process import ProcessOptions, process_clip
 
 
 class _Sums:

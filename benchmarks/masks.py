@@ -16,6 +16,8 @@ import argparse
 from pathlib import Path
 
 import torch
+from sfb_video.stages.masks import MaskSource
+from sfb_video.stages.types import FrameWithBackground
 
 from sfb_video.config import load_config
 from sfb_video.crop import Box, Crop
@@ -23,8 +25,6 @@ from sfb_video.evaluation.runner import MODES, FrameRow, run_sequence
 from sfb_video.evaluation.synthetic import crop_masks
 from sfb_video.evaluation.synthetic_set import SyntheticSequence, ensure_set, list_synthetic
 from sfb_video.evaluation.tables import markdown, summarise
-from stages.background import FrameWithBackground
-from stages.masks import MaskSource
 
 
 def true_masks(sequence: SyntheticSequence) -> MaskSource:

@@ -24,11 +24,11 @@ from pathlib import Path
 
 import cv2
 import torch
+from sfb_video.stages.process import ProcessOptions, process_clip
 
 from sfb_video.config import load_config
 from sfb_video.demo import demo_clip, demo_config
 from sfb_video.video import VideoWriter
-from stages.process import ProcessOptions, process_clip
 
 GENERATED_WIDTH = 640
 """Clips wider than this are generated at a quarter size and scaled up (generating 4K is slow)."""

@@ -22,13 +22,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from sfb_video.stages.process import ProcessOptions, process_clip
 
 from benchmarks.memory import peak_mb
 from sfb_video import timing
 from sfb_video.config import load_config
 from sfb_video.synth import ClipSpec, generate_clip
 from sfb_video.video import VideoWriter
-from stages.process import ProcessOptions, process_clip
 
 FRAMES = 30
 STAGES = ("read", "background", "detect", "fit", "joint", "export", "recording")

@@ -31,7 +31,7 @@ import torch
 
 from sfb_video.config import RenderConfig, load_config
 from sfb_video.evaluation.synthetic import synthetic_crop
-from sfb_video.fitter import Optimisation, deterministic
+from sfb_video.fitting.frame import Optimisation, deterministic
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.pose import pose_vertices
 from sfb_video.geometry.prototypes import load_prototype

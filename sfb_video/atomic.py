@@ -24,7 +24,7 @@ from typing import Any, Self
 import numpy as np
 import torch
 
-from sfb_video.checks import OutputError
+from sfb_video.errors import OutputError
 
 
 def _umask() -> int:

@@ -22,9 +22,9 @@ from pathlib import Path
 from typing import Any
 
 from sfb_video.atomic import atomic_write_bytes, write_json
-from sfb_video.checks import OutputError, SfbError, printable
 from sfb_video.cluster import Outcome, Resources, run_here, run_on_ray
 from sfb_video.config import Config
+from sfb_video.errors import OutputError, SfbError, printable
 
 VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".flv"})
 """A folder's files with these suffixes are its clips."""
@@ -146,7 +146,7 @@ def run_clip(job: ClipJob, options: ClipOptions, report: Callable[[str, int], No
         report: called with the clip's name and the number of its frames done so far.
     """
     from sfb_video.cli import check_video, resolve_device, resolve_frames
-    from stages.process import ProcessOptions, finished_summary, process_clip
+    from sfb_video.stages.process import ProcessOptions, finished_summary, process_clip
 
     started = time.perf_counter()
     row = ClipRow(job.name, str(job.video), str(job.out), FAILED)

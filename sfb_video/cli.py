@@ -20,14 +20,14 @@ from typing import TYPE_CHECKING
 import torch
 
 from sfb_video import __version__
-from sfb_video.checks import OutputError, SfbError, printable
 from sfb_video.config import load_config, save_config
+from sfb_video.errors import OutputError, SfbError, printable
 from sfb_video.interrupts import sigint_outside_kernels
 from sfb_video.run_folder import CONFIG, open_export, open_run
 
 if TYPE_CHECKING:
     from sfb_video.config import Config
-    from stages.masks import MaskSource
+    from sfb_video.stages.masks import MaskSource
 
 BAD_INPUT = 2
 """Exit status of bad input, options or config (one line on stderr)."""
@@ -62,7 +62,7 @@ class Parser(argparse.ArgumentParser):
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from sfb_video.demo import demo_clip, demo_config, score_run, score_table, write_clip_video
-    from stages.process import ProcessOptions, process_clip
+    from sfb_video.stages.process import ProcessOptions, process_clip
 
     config = demo_config(load_config(args.config, args.set))
     device = resolve_device(args.device)
@@ -92,7 +92,7 @@ def _defmo_weights(args: argparse.Namespace) -> Path | None:
 
 
 def _mask_source(args: argparse.Namespace, config: Config, device: torch.device) -> MaskSource:
-    from stages.masks import choose_masks, print_line
+    from sfb_video.stages.masks import choose_masks, print_line
 
     return choose_masks(args.masks, _defmo_weights(args), config.crop, device, log=None if args.quiet else print_line)
 
@@ -111,11 +111,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from sfb_video.crop import find_object_box, make_crop
-    from sfb_video.export import write_fit
-    from sfb_video.fitter import NoObjectError, fit_frame, planned_steps
+    from sfb_video.fitting.frame import NoObjectError, fit_frame, planned_steps
     from sfb_video.geometry.camera import PinholeCamera
     from sfb_video.imageio import read_image
-    from stages.background import FrameWithBackground
+    from sfb_video.mesh_files import write_fit
+    from sfb_video.stages.background import FrameWithBackground
 
     config = load_config(args.config, args.set)
     device = resolve_device(args.device)
@@ -245,7 +245,7 @@ def check_video(video: Path) -> None:
 
 
 def cmd_process(args: argparse.Namespace) -> int:
-    from stages.process import ProcessOptions, process_clip
+    from sfb_video.stages.process import ProcessOptions, process_clip
 
     config = _process_config(args)
     video = Path(args.video)
@@ -276,7 +276,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
 
     from sfb_video import batch
     from sfb_video.cluster import INSTALL, Resources, ray_installed
-    from stages.read import probe
+    from sfb_video.stages.read import probe
 
     config = _process_config(args)
     if args.cpus_per_clip is not None and args.cpus_per_clip < 1:
@@ -361,8 +361,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     from sfb_video.run_folder import saved_frames
-    from stages.novel_views import write_novel_views
-    from stages.process import export_run
+    from sfb_video.stages.novel_views import write_novel_views
+    from sfb_video.stages.process import export_run
 
     if args.tsr is not None and args.tsr < 1:
         raise SfbError(f"--tsr must be at least 1, got {args.tsr}")

@@ -20,7 +20,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from sfb_video.checks import SfbError, printable
+from sfb_video.errors import SfbError, printable
 
 INSTALL = "pip install 'sfb-video[cluster]'"
 

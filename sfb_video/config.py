@@ -25,7 +25,7 @@ from typing import Any, ClassVar
 import yaml
 
 from sfb_video.atomic import atomic_write_bytes
-from sfb_video.checks import ConfigError
+from sfb_video.errors import ConfigError
 from sfb_video.geometry.prototypes import PROTOTYPE_NAMES
 
 PRESETS = "sfb_video.configs"
@@ -198,7 +198,7 @@ class FitConfig(_Checked):
 
 @dataclass(frozen=True)
 class JointConfig(_Checked):
-    """The joint fit of a window of frames of one track (:mod:`sfb_video.joint`)."""
+    """The joint fit of a window of frames of one track (:mod:`sfb_video.fitting.window`)."""
 
     SECTION: ClassVar[str] = "joint"
 
@@ -216,7 +216,7 @@ class JointConfig(_Checked):
     motion: str = one_of("auto", ("auto", "constant_velocity", "constant_acceleration", "bounce"))
     """The trajectory's model; ``auto`` takes constant acceleration, or a bounce where one
     smooth path misses a seed's streak end by more than ``bounce_residual`` and a path broken in
-    one gap between exposures brings every end within it (:func:`sfb_video.joint.choose_motion`)."""
+    one gap between exposures brings every end within it (:func:`sfb_video.fitting.window.choose_motion`)."""
     bounce_residual: float = bounded(0.15, gt=0)
     """``auto`` motion: a bounce is tried when one smooth path passes farther than this from a
     seed's streak end, in apparent object diameters."""
@@ -236,7 +236,7 @@ class JointConfig(_Checked):
     spin_magnitudes: tuple[float, ...] = bounded((30.0, 60.0, 90.0), ge=0, le=180)
     """A track's first window searches the spin (per frame interval, degrees) over these
     magnitudes about ``spin_axes`` axes, and the seeds' spins and none, by the residual of the
-    best coarse texture (:mod:`sfb_video.spin`); empty: start from the best seed's spin."""
+    best coarse texture (:mod:`sfb_video.fitting.spin`); empty: start from the best seed's spin."""
     spin_axes: int = bounded(20, ge=1)
     """Axes of the spin search's grid, spread evenly over the sphere."""
     spin_refine: tuple[float, ...] = bounded((15.0, 7.5), gt=0)

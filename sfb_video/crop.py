@@ -16,8 +16,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from sfb_video.checks import SfbError
 from sfb_video.config import CropConfig
+from sfb_video.errors import SfbError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.imageio import as_float
 

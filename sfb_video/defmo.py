@@ -20,9 +20,9 @@ from kornia.core.download import load_state_dict_from_url
 from kornia.feature import DeFMO
 from kornia.feature.defmo import urls
 
-from sfb_video.checks import SfbError
 from sfb_video.config import CropConfig
 from sfb_video.crop import Box, Crop, crop_box
+from sfb_video.errors import SfbError
 
 INPUT_SIZE = (240, 320)
 """(height, width) DeFMO was trained at; its windows are 4:3 like crops, so resizing keeps shapes."""

@@ -14,9 +14,9 @@ from pathlib import Path
 
 from sfb_video.config import Config
 from sfb_video.evaluation.synthetic import FrameScore, score_state
+from sfb_video.stages.windows import final_results
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip
 from sfb_video.video import VideoWriter
-from stages.joint import final_results
 
 
 def demo_clip(config: Config) -> SyntheticClip:

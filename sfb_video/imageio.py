@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from sfb_video.atomic import atomic_write_bytes
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 
 
 def as_float(image: torch.Tensor) -> torch.Tensor:

@@ -66,10 +66,10 @@ import rerun as rr
 import torch
 
 from sfb_video.atomic import AtomicOutput, output_error, temporary_sibling
-from sfb_video.checks import OutputError, SfbError, check_shape
-from sfb_video.export import to_trimesh
+from sfb_video.errors import OutputError, SfbError, check_shape
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.imageio import to_uint8
+from sfb_video.mesh_files import to_trimesh
 from sfb_video.model.formation import exposure_times
 from sfb_video.model.scene import ObjectState
 from sfb_video.timing import timed
@@ -234,7 +234,7 @@ class Recorder(AtomicOutput):
 
     def log_quality(self, index: int, explained: float) -> None:
         """Log how much of frame ``index``'s difference from its background the fit explains
-        (:func:`stages.composite.explained`) as ``quality/explained``."""
+        (:func:`sfb_video.stages.composite.explained`) as ``quality/explained``."""
         self._at(frame=index)
         self._log("quality/explained", rr.Scalars(float(explained)))
 

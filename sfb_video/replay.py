@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 from urllib.parse import quote
 
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 from sfb_video.run_folder import RECORDING
 
 WEB_PORT = 9090

@@ -18,11 +18,11 @@ from typing import Any
 import torch
 
 from sfb_video.atomic import atomic_write_bytes
-from sfb_video.checks import SfbError
 from sfb_video.crop import Box
+from sfb_video.errors import SfbError
+from sfb_video.fitting.window import JointResult
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
-from sfb_video.joint import JointResult
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.model.trajectory import Trajectory
@@ -46,7 +46,7 @@ class FrameResult:
         curve: the loss terms at every optimisation step of the kept prototype.
         seconds: wall time of the fit.
         mask_source: the masks the fit used: ``"diff"`` (L_D on the difference mask), ``"defmo"``
-            (L_S on DeFMO's sub-frame masks), or another :class:`stages.masks.MaskSource`'s name.
+            (L_S on DeFMO's sub-frame masks), or another :class:`sfb_video.stages.masks.MaskSource`'s name.
         masks: (N, h, w) the sub-frame masks the fit used, in this result's time order, or None
             for the difference mask.
         masks_reversed: whether that order is the reverse of the masks' own (DeFMO's).
@@ -140,11 +140,11 @@ class SavedWindow:
     """The joint fit of one window of a track, as the run folder keeps it.
 
     Attributes:
-        track: the track's number (:class:`stages.track.FrameStatus`).
+        track: the track's number (:class:`sfb_video.stages.track.FrameStatus`).
         result: the joint fit; its ``losses`` name the window's frames.
         before: per frame of the window, the loss terms of its single-frame fit (the seed).
         explained: per frame, how much of its difference from the background the single-frame
-            fit and the joint fit explain (:func:`stages.composite.fit_quality`), in that order.
+            fit and the joint fit explain (:func:`sfb_video.stages.composite.fit_quality`), in that order.
         accepted: whether the joint fit stands for the window's frames (else they keep their
             single-frame fits, ``joint.max_explained_drop``).
     """

@@ -50,7 +50,7 @@ from types import TracebackType
 from typing import Any, Self
 
 from sfb_video.atomic import TEMPORARY_MARK, output_error, write_json
-from sfb_video.checks import OutputError, SfbError
+from sfb_video.errors import OutputError, SfbError
 
 FORMAT = "sfb-video"
 VERSION = 1

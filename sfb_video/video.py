@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from sfb_video.atomic import AtomicOutput, output_error, temporary_sibling
-from sfb_video.checks import OutputError, SfbError, check_shape
+from sfb_video.errors import OutputError, SfbError, check_shape
 from sfb_video.imageio import to_uint8
 
 # The frame rate reported when FFmpeg gives none (average, guessed and base rates all unset).

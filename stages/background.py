@@ -13,43 +13,17 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
 from itertools import chain, islice
 from pathlib import Path
 
 import torch
+from sfb_video.stages.read import read_frames
+from sfb_video.stages.types import Frame, FrameWithBackground
 
-from sfb_video.checks import ConfigError, SfbError
 from sfb_video.config import VideoConfig
+from sfb_video.errors import ConfigError, SfbError
 from sfb_video.imageio import as_float, read_image
 from sfb_video.timing import timed, timed_iter
-from stages.read import Frame, read_frames
-
-
-@dataclass(frozen=True)
-class FrameWithBackground:
-    """A frame and its background.
-
-    Attributes:
-        index: the frame's position in the clip.
-        pixels, background_pixels: (3, H, W) each, kept as compact as the source allows: uint8
-            from an 8-bit clip (a 4K frame is 25 MB, not 100), else float32 in [0, 1].
-    """
-
-    index: int
-    pixels: torch.Tensor
-    background_pixels: torch.Tensor
-
-    @property
-    def image(self) -> torch.Tensor:
-        """(3, H, W) float32 in [0, 1] (made on each access from compact pixels)."""
-        return as_float(self.pixels)
-
-    @property
-    def background(self) -> torch.Tensor:
-        """(3, H, W) float32 in [0, 1] (made on each access from compact pixels)."""
-        return as_float(self.background_pixels)
-
 
 MEDIAN_BAND_VALUES = 1 << 22
 """The per-pixel median is taken a band of rows at a time, over about this many values of the

@@ -18,13 +18,13 @@ import math
 import cv2
 import numpy as np
 import torch
+from sfb_video.stages.detect import difference_image, hysteresis, weak_level
 
 from sfb_video.config import DetectConfig, RenderConfig
 from sfb_video.crop import Box
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
-from stages.detect import difference_image, hysteresis, weak_level
 
 FEATHER_PX = 3
 """The region's edge blends from the composite to the frame over about this many pixels."""
@@ -67,8 +67,8 @@ def object_region(path: np.ndarray, difference: np.ndarray, level: float, reach:
 
     Args:
         path: (H, W) bool, where the model's object is (:func:`path_mask`).
-        difference: (H, W) the frame's ||I - B|| (:func:`stages.detect.difference_image`).
-        level: differences above this are the streak's (:func:`stages.detect.weak_level`).
+        difference: (H, W) the frame's ||I - B|| (:func:`sfb_video.stages.detect.difference_image`).
+        level: differences above this are the streak's (:func:`sfb_video.stages.detect.weak_level`).
         reach: the parts of the difference connected to the path are taken up to this many
             pixels from it, so that a slow mover touching the streak is not erased whole.
     """

@@ -19,41 +19,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import torch
+from sfb_video.stages.types import Detection, Prediction
 
 from sfb_video.config import DetectConfig
-from sfb_video.crop import Box
 from sfb_video.imageio import as_float
 from sfb_video.timing import timed
-
-
-@dataclass(frozen=True)
-class Detection:
-    """The object found in one frame.
-
-    Attributes:
-        index: the frame's index.
-        box: (x, y, w, h) tight box of the object's blob.
-        mask: (H, W) bool, the blob.
-        others: how many other blobs could have been the object (at least a quarter of its
-            area, within the track's gate): another fast mover, which is not tracked.
-        colour: the blob's chromaticity (:func:`blob_colour`), when the frame was given.
-    """
-
-    index: int
-    box: Box
-    mask: torch.Tensor
-    others: int = 0
-    colour: tuple[float, float, float] | None = None
-
-
-@dataclass(frozen=True)
-class Prediction:
-    """Where a tracked object should appear: the (u, v) pixel centre of its next exposure's
-    streak, its apparent diameter in pixels, and its track's chromaticity (of its blobs so far)."""
-
-    centre: tuple[float, float]
-    diameter: float
-    colour: tuple[float, float, float] | None = None
 
 
 def _opened(mask: np.ndarray, config: DetectConfig) -> torch.Tensor:

@@ -3,7 +3,7 @@
 Everything here is rendered from the results saved in the run folder and the clip itself, so
 ``sfb-video export`` can redo it at another TSR factor without fitting again. The clip is
 streamed once and each result loaded only for its frame. Where a joint fit covers a frame
-(:mod:`stages.joint`), the frame's object is the window's (its shared mesh and texture, its
+(:mod:`sfb_video.stages.windows`), the frame's object is the window's (its shared mesh and texture, its
 pose on the window's trajectory), and the trajectory between exposures is exported too. Every
 file is written atomically.
 """
@@ -21,14 +21,18 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
+from sfb_video.stages.composite import BLUR_POSES, explained, fitted_region, region_box
+from sfb_video.stages.detect import difference_image, threshold_difference
+from sfb_video.stages.types import FrameStatus, FrameWithBackground, Window
+from sfb_video.stages.windows import frame_windows, with_joint
 
 from sfb_video.atomic import atomic_write_bytes
 from sfb_video.config import Config
 from sfb_video.crop import Box
-from sfb_video.export import motion_record, write_glb, write_obj
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import matrix_to_axis_angle
 from sfb_video.imageio import as_float
+from sfb_video.mesh_files import motion_record, write_glb, write_obj
 from sfb_video.model.formation import exposure_times
 from sfb_video.model.scene import ObjectState
 from sfb_video.model.trajectory import Trajectory
@@ -46,11 +50,6 @@ from sfb_video.run_folder import (
     window_path,
 )
 from sfb_video.video import VideoWriter
-from stages.background import FrameWithBackground
-from stages.composite import BLUR_POSES, explained, fitted_region, region_box
-from stages.detect import difference_image, threshold_difference
-from stages.joint import Window, frame_windows, with_joint
-from stages.track import FrameStatus
 
 
 class Pasted(Sequence[torch.Tensor]):
@@ -63,7 +62,7 @@ class Pasted(Sequence[torch.Tensor]):
         patches: (N, 3, h, w) float32 in [0, 1], what replaces the box in each frame.
         box: (x, y, w, h) where.
         weights: (h, w) in [0, 1], how much of each patch pixel replaces the frame's
-            (:func:`stages.composite.object_region`).
+            (:func:`sfb_video.stages.composite.object_region`).
     """
 
     def __init__(self, frame: torch.Tensor, patches: torch.Tensor, box: Box, weights: torch.Tensor) -> None:
@@ -94,7 +93,7 @@ class Rendered:
         subframes: N full frames (3, H, W), the sharp sub-frames, made one at a time.
             Both in the dtype the frame is kept in (uint8 or float32, :func:`as_float`).
         explained: how much of the frame's difference from its background the fit explains
-            over the object's region (:func:`stages.composite.explained`).
+            over the object's region (:func:`sfb_video.stages.composite.explained`).
     """
 
     reconstruction: torch.Tensor
@@ -136,7 +135,7 @@ def render_frame(
     difference: np.ndarray | None = None,
 ) -> Rendered:
     """Render ``result`` over the background in the object's region and blend it into the
-    frame (:mod:`stages.composite`): the model's path and the parts of the frame's streak
+    frame (:mod:`sfb_video.stages.composite`): the model's path and the parts of the frame's streak
     connected to it, so that no part of the input's streak is left as a ghost.
 
     Outside the region the input frame is kept (so other movers stay as they were). A region
@@ -144,7 +143,7 @@ def render_frame(
     onto it.
 
     Args:
-        difference: (H, W) the frame's :func:`stages.detect.difference_image`, if already made.
+        difference: (H, W) the frame's :func:`sfb_video.stages.detect.difference_image`, if already made.
     """
     if difference is None:
         difference = difference_image(frame.pixels, frame.background_pixels)

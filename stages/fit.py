@@ -2,7 +2,7 @@
 
 A track's first frame starts cold (every prototype, full iterations). Each next frame starts
 warm from the previous frame's mesh, texture and motion, its start pose predicted by continuing
-that motion across the gap between the two exposures (:mod:`stages.track` decides which frames
+that motion across the gap between the two exposures (:mod:`sfb_video.stages.track` decides which frames
 form a track and in which time direction they run).
 """
 
@@ -12,17 +12,16 @@ import dataclasses
 import time
 
 import torch
+from sfb_video.stages.masks import MaskSource, orient_masks
+from sfb_video.stages.types import Detection, FrameWithBackground
 
 from sfb_video.config import Config
 from sfb_video.crop import make_crop
-from sfb_video.fitter import WarmStart, fit_frame
+from sfb_video.fitting.frame import WarmStart, fit_frame
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion, continue_turning
 from sfb_video.results import FrameResult
 from sfb_video.timing import timed
-from stages.background import FrameWithBackground
-from stages.detect import Detection
-from stages.masks import MaskSource, orient_masks
 
 
 @timed("fit")

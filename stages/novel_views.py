@@ -11,9 +11,10 @@ import math
 from pathlib import Path
 
 import torch
+from sfb_video.stages.windows import final_results
 
-from sfb_video.checks import SfbError
 from sfb_video.config import Config
+from sfb_video.errors import SfbError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.pose import pose_vertices
 from sfb_video.geometry.rotation import axis_angle_to_matrix
@@ -22,7 +23,6 @@ from sfb_video.model.scene import ObjectState
 from sfb_video.render import MeshRenderer
 from sfb_video.run_folder import NOVEL_VIEWS, ensure_folder, novel_view_path
 from sfb_video.video import VideoWriter
-from stages.joint import final_results
 
 SIZE = (320, 240)
 """Width and height of the turntable images."""

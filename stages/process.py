@@ -18,11 +18,18 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+from sfb_video.stages.background import with_backgrounds
+from sfb_video.stages.export import Exported, export_frames, write_csv
+from sfb_video.stages.masks import MaskSource, choose_masks, print_line
+from sfb_video.stages.read import probe
+from sfb_video.stages.track import track_and_fit
+from sfb_video.stages.types import FrameStatus
+from sfb_video.stages.windows import fit_windows, track_windows
 from tqdm import tqdm
 
 from sfb_video.atomic import write_json
-from sfb_video.checks import SfbError, printable
 from sfb_video.config import Config, config_to_dict, save_config
+from sfb_video.errors import SfbError, printable
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.results import FrameResult, SavedWindow, load_window
 from sfb_video.run_folder import (
@@ -40,12 +47,6 @@ from sfb_video.run_folder import (
 )
 from sfb_video.timing import timed
 from sfb_video.video import VideoInfo
-from stages.background import with_backgrounds
-from stages.export import Exported, export_frames, write_csv
-from stages.joint import fit_windows, track_windows
-from stages.masks import MaskSource, choose_masks, print_line
-from stages.read import probe
-from stages.track import FrameStatus, track_and_fit
 
 
 @dataclass(frozen=True)
@@ -61,7 +62,7 @@ class ProcessOptions:
         object_diameter: the object's real diameter in metres, for metric positions and speeds.
         overwrite: replace a finished run in ``out``.
         masks: ``auto``, ``defmo`` or ``diff``: which sub-frame masks the fits use
-            (:func:`stages.masks.choose_masks`).
+            (:func:`sfb_video.stages.masks.choose_masks`).
         defmo_weights: a folder with DeFMO's weights (default: torch hub's cache).
     """
 

@@ -8,31 +8,17 @@ into float); grayscale sources come out as RGB.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
-import torch
+from sfb_video.stages.types import Frame
 
-from sfb_video.checks import SfbError
 from sfb_video.config import VideoConfig
+from sfb_video.errors import SfbError
 from sfb_video.timing import timed_iter
 from sfb_video.video import VideoInfo, VideoReader
 
 MIN_SIDE = 16
 """Frames smaller than this on a side cannot hold a streak and an object box around it."""
-
-
-@dataclass(frozen=True)
-class Frame:
-    """One decoded frame.
-
-    Attributes:
-        index: position in the clip, from 0.
-        image: (3, H, W) RGB: uint8 for 8-bit sources, else float32 in [0, 1].
-    """
-
-    index: int
-    image: torch.Tensor
 
 
 def probe(path: Path, config: VideoConfig) -> VideoInfo:

@@ -16,34 +16,20 @@ import dataclasses
 import math
 from collections import deque
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+from sfb_video.stages.detect import Neighbour, choose_blob, difference_mask, moving_mask, still_there
+from sfb_video.stages.fit import continued, fit_detection
+from sfb_video.stages.masks import MaskSource
+from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground, Prediction
 
 from sfb_video.config import Config
-from sfb_video.fitter import NoObjectError
+from sfb_video.fitting.frame import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion
 from sfb_video.results import FrameResult, load_result, save_result
 from sfb_video.run_folder import frame_path, saved_frames
-from stages.background import FrameWithBackground
-from stages.detect import Detection, Neighbour, Prediction, choose_blob, difference_mask, moving_mask, still_there
-from stages.fit import continued, fit_detection
-from stages.masks import MaskSource
-
-
-@dataclass(frozen=True)
-class FrameStatus:
-    """What happened to one frame: ``fitted``, ``no_object`` or ``failed`` (with the reason),
-    and for a fitted frame, the number of its track (0, 1, ... in the order tracks start)."""
-
-    index: int
-    status: str
-    box: tuple[int, int, int, int] | None = None
-    note: str = ""
-    track: int | None = None
-
 
 StepReport = Callable[[FrameStatus, FrameResult | None], None]
 
@@ -102,7 +88,7 @@ def join(
 def with_neighbours(
     frames: Iterator[FrameWithBackground], config: Config
 ) -> Iterator[tuple[FrameWithBackground, torch.Tensor, list[Neighbour]]]:
-    """Each frame with its difference mask and its neighbours (:class:`~stages.detect.Neighbour`): the
+    """Each frame with its difference mask and its neighbours (:class:`~sfb_video.stages.detect.Neighbour`): the
     frames two before and two after.
 
     Two frames apart, not one: an FMO's streaks in consecutive frames can overlap (it moves

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from sfb_video.atomic import AtomicOutput, atomic_write_bytes, temporary_sibling, write_json
-from sfb_video.checks import OutputError
+from sfb_video.errors import OutputError
 
 
 def test_atomic_write_replaces_whole_files(tmp_path: Path) -> None:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from sfb_video.checks import SfbError
 from sfb_video.cluster import Outcome, Resources, run_here
+from sfb_video.errors import SfbError
 
 
 def _job(kind: str) -> tuple[str, int]:

@@ -2,8 +2,8 @@ from pathlib import Path
 
 import pytest
 
-from sfb_video.checks import ConfigError
 from sfb_video.config import Config, config_to_dict, load_config
+from sfb_video.errors import ConfigError
 
 
 def test_default_preset_matches_the_paper() -> None:

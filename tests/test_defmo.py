@@ -11,9 +11,9 @@ from kornia.feature import DeFMO
 from torch import nn
 
 from sfb_video import defmo
-from sfb_video.checks import SfbError
 from sfb_video.config import CropConfig
 from sfb_video.crop import Crop, make_crop
+from sfb_video.errors import SfbError
 from sfb_video.geometry.camera import PinholeCamera
 
 

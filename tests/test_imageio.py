@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 from sfb_video.imageio import read_image, write_image
 
 

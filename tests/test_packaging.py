@@ -14,12 +14,11 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def test_every_package_of_the_tree_is_in_the_wheel() -> None:
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
-    found = {
-        ".".join(p.parent.relative_to(ROOT).parts)
-        for top in ("sfb_video", "stages")
-        for p in (ROOT / top).rglob("__init__.py")
+    found = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "sfb_video").rglob("__init__.py")}
+    stages = {
+        ".".join(("sfb_video", *p.parent.relative_to(ROOT).parts)) for p in (ROOT / "stages").rglob("__init__.py")
     }
-    assert found | {PRESETS} == listed
+    assert found | stages | {PRESETS} == listed
 
 
 def test_presets_ship_in_the_package() -> None:

@@ -15,18 +15,18 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
+import sfb_video.stages.track
 import torch
 import trimesh
 from rerun.chunk import RrdReader
+from sfb_video.stages.process import ProcessOptions, process_clip
 
-import stages.track
 from sfb_video.cli import main
 from sfb_video.config import Config, load_config
 from sfb_video.demo import demo_clip, demo_config, score_run, write_clip_video
 from sfb_video.model.motion import continue_motion
 from sfb_video.results import load_results
 from sfb_video.synth import SyntheticClip
-from stages.process import ProcessOptions, process_clip
 
 CPU = torch.device("cpu")
 
@@ -138,8 +138,8 @@ def test_the_track_is_fitted_jointly_and_the_outputs_follow_it(run: Run) -> None
 
 
 def test_saved_windows_are_reused_without_reading_the_clip(run: Run) -> None:
-    from stages.joint import fit_windows
-    from stages.process import read_run
+    from sfb_video.stages.process import read_run
+    from sfb_video.stages.windows import fit_windows
 
     _, statuses = read_run(run.out)
 
@@ -176,7 +176,7 @@ def test_an_interrupted_run_resumes_from_the_last_finished_frame(
     run: Run, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     out = tmp_path / "run"
-    real_fit = stages.track.fit_detection
+    real_fit = sfb_video.stages.track.fit_detection
     fitted: list[int] = []
 
     def stop_at_the_third(*args: object, **kwargs: object) -> object:
@@ -187,7 +187,7 @@ def test_an_interrupted_run_resumes_from_the_last_finished_frame(
 
     options = ProcessOptions(video=run.video, out=out)
     with monkeypatch.context() as patch:
-        patch.setattr(stages.track, "fit_detection", stop_at_the_third)
+        patch.setattr(sfb_video.stages.track, "fit_detection", stop_at_the_third)
         with pytest.raises(KeyboardInterrupt):
             process_clip(options, run.config, CPU, quiet=True)
     assert not (out / "summary.json").exists()

@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from sfb_video.stages.background import running_median, with_backgrounds
+from sfb_video.stages.detect import choose_blob, moving_mask
+from sfb_video.stages.process import ProcessOptions, process_clip
+from sfb_video.stages.track import with_neighbours
+from sfb_video.stages.types import Frame
 
 from benchmarks.detect import aerobie_clip, box_iou
 from sfb_video.config import load_config
-from stages.background import running_median, with_backgrounds
-from stages.detect import choose_blob, moving_mask
-from stages.process import ProcessOptions, process_clip
-from stages.read import Frame
-from stages.track import with_neighbours
 
 CLIPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "clips"
 pytestmark = pytest.mark.skipif(not CLIPS.is_dir(), reason="needs ../shared/data/clips beside the checkout")

@@ -15,8 +15,8 @@ import rerun as rr
 import torch
 from rerun.chunk import Chunk, RrdReader
 
-from sfb_video.checks import SfbError
 from sfb_video.config import load_config
+from sfb_video.errors import SfbError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.imageio import to_uint8

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from sfb_video.atomic import atomic_write_bytes
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 from sfb_video.run_folder import (
     MARKER,
     NEW_SUFFIX,

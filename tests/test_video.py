@@ -11,7 +11,7 @@ import pytest
 import torch
 
 import sfb_video.video as video
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 from sfb_video.video import VideoReader, VideoWriter
 from tests.media import write_keyframeless
 

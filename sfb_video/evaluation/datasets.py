@@ -34,7 +34,7 @@ import numpy as np
 import scipy.io
 from skimage.measure import label, regionprops
 
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 
 DATASETS = ("tbd", "tbd3d", "falling")
 """The benchmark's datasets, by the names :func:`list_sequences` takes."""

@@ -49,7 +49,7 @@ def run_job(
 ) -> list[FrameRow]:
     """Fit and score one job's frames (on a worker: its own device and mask source)."""
     from sfb_video.cli import resolve_device
-    from stages.masks import choose_masks
+    from sfb_video.stages.masks import choose_masks
 
     where = resolve_device(device)
     source = choose_masks(masks, weights, config.crop, where, log=None)

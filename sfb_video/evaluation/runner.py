@@ -5,7 +5,7 @@ Each frame gets what the FMO deblurring benchmark hands a method: the frame, its
 the tight box and the number of sub-frames. ``per-frame`` fits every frame from a cold start,
 as the benchmark (and the paper) does; ``video`` fits the sequence in order, each frame
 warm-started from the previous one; ``joint`` then refits windows of those frames with one
-shape and one trajectory (:mod:`stages.joint`), as the pipeline does by default. All are scored
+shape and one trajectory (:mod:`sfb_video.stages.windows`), as the pipeline does by default. All are scored
 with the benchmark's own rules (``sfb_video.metrics``), so their numbers compare with the published ones and with each
 other. A frame the method cannot fit scores 0 on every measure, as in the benchmark, where an
 unscored frame keeps its initial 0.
@@ -27,14 +27,14 @@ import torch
 from sfb_video.config import Config
 from sfb_video.evaluation.datasets import BenchmarkFrame
 from sfb_video.evaluation.scoring import render_estimate, score_estimate
-from sfb_video.fitter import NoObjectError
+from sfb_video.fitting.frame import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.results import FrameResult, SavedWindow
-from sfb_video.synth import SyntheticClip
-from stages.background import FrameWithBackground
-from stages.detect import Detection
-from stages.fit import fit_detection
-from stages.joint import (
+from sfb_video.stages.fit import fit_detection
+from sfb_video.stages.masks import MaskSource
+from sfb_video.stages.track import join, join_gap, predict, ray_gap
+from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground
+from sfb_video.stages.windows import (
     fit_track_window,
     frame_windows,
     previous_window,
@@ -42,8 +42,7 @@ from stages.joint import (
     window_frame,
     with_joint,
 )
-from stages.masks import MaskSource
-from stages.track import FrameStatus, join, join_gap, predict, ray_gap
+from sfb_video.synth import SyntheticClip
 
 MODES = ("per-frame", "video", "joint")
 

@@ -17,7 +17,7 @@ import torch.nn.functional as F
 from sfb_video.config import Config
 from sfb_video.crop import Crop, make_crop
 from sfb_video.evaluation.scoring import render_estimate, score_estimate
-from sfb_video.fitter import FitResult, fit_frame
+from sfb_video.fitting.frame import FitResult, fit_frame
 from sfb_video.model.scene import ObjectState
 from sfb_video.synth import SyntheticClip
 

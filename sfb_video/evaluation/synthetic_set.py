@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from sfb_video.atomic import atomic_write_bytes
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 from sfb_video.evaluation.datasets import BenchmarkFrame
 from sfb_video.synth import ClipSpec, SyntheticClip
 from sfb_video.synth.io import load_clip, write_clip

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import torch
 
-from sfb_video.checks import MeshError, check_faces, check_finite, check_shape
+from sfb_video.errors import MeshError, check_faces, check_finite, check_shape
 
 
 @dataclass(frozen=True)

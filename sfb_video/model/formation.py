@@ -17,7 +17,7 @@ def exposure_times(time_steps: int, device: torch.device | str = "cpu") -> torch
     return (torch.arange(time_steps, device=device, dtype=torch.float32) + 0.5) / time_steps
 
 
-def composite(rgb: torch.Tensor, alpha: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
+def blend(rgb: torch.Tensor, alpha: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
     """Blur T renders over a background.
 
     Args:

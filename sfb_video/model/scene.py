@@ -69,5 +69,5 @@ class ObjectState:
                 out = self.render(camera, chunk, settings)
                 premultiplied += (out.rgb * out.alpha).sum(0)
                 coverage += out.alpha.sum(0)
-        # composite() of all T renders, from their sums.
+        # blend() of all T renders, from their sums.
         return premultiplied / len(taus) + (1 - coverage / len(taus)) * background

@@ -1,5 +1,5 @@
 """A continuous 6-DoF trajectory through a window of frames: where the object is between and
-within exposures, for the joint fit of several frames (:mod:`sfb_video.joint`).
+within exposures, for the joint fit of several frames (:mod:`sfb_video.fitting.window`).
 
 Convention:
     Time t is in frame intervals from the start of the window's first exposure: frame k of a

@@ -507,7 +507,7 @@ def shade_lists(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Colour and soft silhouette of the listed pixels, compiled; the values and gradients of
     :func:`~sfb_video.render.rasterizer.interpolate` followed by the shader (and, with a
-    background, by :func:`~sfb_video.model.formation.composite`).
+    background, by :func:`~sfb_video.model.formation.blend`).
 
     Args:
         uv: (T, V, 2) pixels and depth: (T, V) of the posed vertices, with gradient.

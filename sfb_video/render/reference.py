@@ -10,8 +10,8 @@ import math
 
 import torch
 
-from sfb_video.checks import check_in_front
 from sfb_video.config import RenderConfig
+from sfb_video.errors import check_in_front
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology, check_vertices
 from sfb_video.render.barycentric import (

@@ -9,7 +9,7 @@ import torch
 from sfb_video.config import RenderConfig
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
-from sfb_video.model.formation import composite
+from sfb_video.model.formation import blend
 from sfb_video.render import fused
 from sfb_video.render.fragments import Fragments, PixelLists
 from sfb_video.render.rasterizer import find_pixels, pixel_unit, project_checked, rasterize
@@ -49,13 +49,13 @@ class MeshRenderer:
         self, vertices: torch.Tensor, topology: MeshTopology, texture: torch.Tensor, background: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """The T renders composited over a (3, H, W) background (no gradient): the blurred image
-        (3, H, W) of :func:`~sfb_video.model.formation.composite` and the silhouettes
+        (3, H, W) of :func:`~sfb_video.model.formation.blend` and the silhouettes
         (T, 1, H, W), without the T colour images in between where the compiled passes serve."""
         if self._compiled(vertices, texture):
             image, alpha, _ = self._fused(vertices, topology, texture, background)
             return image, alpha
         out = self(vertices, topology, texture)
-        return composite(out.rgb, out.alpha, background), out.alpha
+        return blend(out.rgb, out.alpha, background), out.alpha
 
     def _compiled(self, vertices: torch.Tensor, texture: torch.Tensor) -> bool:
         return self.rasterizer is rasterize and fused.available(vertices, texture)

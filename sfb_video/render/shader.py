@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from sfb_video.checks import SfbError, check_finite
+from sfb_video.errors import SfbError, check_finite
 from sfb_video.geometry.mesh import MeshTopology
 from sfb_video.render.fragments import Fragments
 

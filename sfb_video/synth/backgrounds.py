@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import skimage.data
 
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 
 # Photos stored in the scikit-image wheel itself; the others in skimage.data are fetched from
 # the network on first use, which must never happen in a test.

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from sfb_video.atomic import atomic_write_bytes
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
 from sfb_video.imageio import to_uint8

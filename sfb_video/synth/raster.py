@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from sfb_video.checks import PoseError, SfbError, check_shape
+from sfb_video.errors import PoseError, SfbError, check_shape
 from sfb_video.geometry.camera import PinholeCamera
 
 # Samples whose barycentric coordinate is this far below 0 still count as inside, so a sample

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 from sfb_video.geometry.mesh import MeshTopology, normalize_vertices, signed_volume
 from sfb_video.geometry.prototypes import torus, uv_sphere
 from sfb_video.synth.textures import procedural_texture

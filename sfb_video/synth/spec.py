@@ -11,7 +11,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from sfb_video.checks import ConfigError
+from sfb_video.errors import ConfigError
 from sfb_video.synth.backgrounds import BACKGROUND_NAMES
 from sfb_video.synth.shapes import SHAPE_NAMES
 from sfb_video.synth.textures import TEXTURE_STYLES

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 
 TEXTURE_STYLES = ("stripes", "checker", "patches", "mixed")
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.synth.spec import ClipSpec
 

@@ -71,12 +71,12 @@ def test_bad_fit_inputs_give_one_line_errors(
 def test_interrupted_fit_exits_130_and_leaves_nothing(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import sfb_video.fitter
+    import sfb_video.fitting.frame
 
     def interrupted(*args: object, **kwargs: object) -> None:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(sfb_video.fitter, "fit_frame", interrupted)
+    monkeypatch.setattr(sfb_video.fitting.frame, "fit_frame", interrupted)
     background = np.zeros((60, 80, 3), np.uint8)
     image = background.copy()
     image[20:30, 20:50] = 255

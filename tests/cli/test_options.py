@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sfb_video.checks import SfbError
 from sfb_video.cli import main, parse_frames, resolve_frames
+from sfb_video.errors import SfbError
 from sfb_video.video import VideoWriter
 
 FAST = ["--config", "fast", "--device", "cpu", "--quiet"]

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import sfb_video.stages.process
+import sfb_video.stages.track
 
-import stages.process
-import stages.track
 from sfb_video.cli import main
 from sfb_video.config import load_config
 from sfb_video.demo import demo_clip, demo_config
@@ -96,7 +96,7 @@ def test_a_replacement_interrupted_keeps_the_old_run_and_resumes(
 ) -> None:
     out = _copy(finished, tmp_path)
     before = _contents(out)
-    real_fit = stages.track.fit_detection
+    real_fit = sfb_video.stages.track.fit_detection
     calls: list[int] = []
 
     def interrupt_the_second(*args: object, **kwargs: object) -> object:
@@ -107,7 +107,7 @@ def test_a_replacement_interrupted_keeps_the_old_run_and_resumes(
 
     args = ["process", str(clip), "--out", str(out), "--overwrite", "--tsr", "2", *QUICK]
     with monkeypatch.context() as patch:
-        patch.setattr(stages.track, "fit_detection", interrupt_the_second)
+        patch.setattr(sfb_video.stages.track, "fit_detection", interrupt_the_second)
         assert main(args) == 130
     _one_line(capsys, "interrupted", "stays as it was", "resume")
     assert _contents(out) == before
@@ -169,14 +169,14 @@ def _fill(disk: Path) -> Path:
 
 def _after_saves(monkeypatch: pytest.MonkeyPatch, count: int, fault: Callable[[], None]) -> None:
     """Run ``fault`` once, just before the fit of the frame after ``count`` saved ones."""
-    real_save = stages.track.save_result
+    real_save = sfb_video.stages.track.save_result
     saved: list[int] = []
 
     def save(folder: Path, result: object) -> None:
         real_save(folder, result)
         saved.append(1)
 
-    real_fit = stages.track.fit_detection
+    real_fit = sfb_video.stages.track.fit_detection
 
     def fit(*args: object, **kwargs: object) -> object:
         if len(saved) == count:
@@ -184,8 +184,8 @@ def _after_saves(monkeypatch: pytest.MonkeyPatch, count: int, fault: Callable[[]
             fault()
         return real_fit(*args, **kwargs)
 
-    monkeypatch.setattr(stages.track, "save_result", save)
-    monkeypatch.setattr(stages.track, "fit_detection", fit)
+    monkeypatch.setattr(sfb_video.stages.track, "save_result", save)
+    monkeypatch.setattr(sfb_video.stages.track, "fit_detection", fit)
 
 
 @pytest.mark.parametrize("saved_before", [0, 1])
@@ -213,7 +213,7 @@ def test_a_full_disk_during_the_exports_keeps_every_frame(
     clip: Path, small_disk: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     out = small_disk / "run"
-    real_export = stages.process.export_frames
+    real_export = sfb_video.stages.process.export_frames
     filler: list[Path] = []
 
     def fill_then_export(*args: object, **kwargs: object) -> object:
@@ -222,7 +222,7 @@ def test_a_full_disk_during_the_exports_keeps_every_frame(
 
     args = ["process", str(clip), "--out", str(out), *QUICK]
     with monkeypatch.context() as patch:
-        patch.setattr(stages.process, "export_frames", fill_then_export)
+        patch.setattr(sfb_video.stages.process, "export_frames", fill_then_export)
         assert main(args) == 4
     _one_line(capsys, "No space left on device")
     assert len(list((out / "frames").iterdir())) == 4
@@ -328,7 +328,7 @@ def test_fit_replaces_its_folder_only_with_a_finished_fit(
         raise KeyboardInterrupt
 
     with monkeypatch.context() as patch:
-        patch.setattr("sfb_video.fitter.fit_frame", interrupted)
+        patch.setattr("sfb_video.fitting.frame.fit_frame", interrupted)
         assert main([*args, "--overwrite"]) == 130
     assert _contents(out) == before
     assert main([*args, "--overwrite", "--tsr", "3"]) == 0
@@ -346,7 +346,7 @@ def test_an_export_that_fails_leaves_the_run_as_it_was(
         raise KeyboardInterrupt
 
     with monkeypatch.context() as patch:
-        patch.setattr(stages.process, "write_csv", broken)
+        patch.setattr(sfb_video.stages.process, "write_csv", broken)
         assert main(["export", str(out), "--tsr", "2", "--quiet"]) == 130
     assert _contents(out) == before
     assert not sibling(out, NEW_SUFFIX).exists() and not _temporaries(out)

@@ -7,8 +7,8 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
+import sfb_video.stages.track
 
-import stages.track
 from sfb_video.cli import main
 from sfb_video.config import load_config
 from sfb_video.demo import demo_clip, demo_config
@@ -123,7 +123,7 @@ def test_ctrl_c_exits_130_and_keeps_finished_frames_for_resuming(
 ) -> None:
     config = demo_config(load_config("fast"))
     path = _write(tmp_path / "clip.mp4", list(demo_clip(config).frames))
-    real_fit = stages.track.fit_detection
+    real_fit = sfb_video.stages.track.fit_detection
     calls: list[int] = []
 
     def fit_then_interrupt(*args: object, **kwargs: object) -> object:
@@ -132,7 +132,7 @@ def test_ctrl_c_exits_130_and_keeps_finished_frames_for_resuming(
             raise KeyboardInterrupt
         return real_fit(*args, **kwargs)
 
-    monkeypatch.setattr(stages.track, "fit_detection", fit_then_interrupt)
+    monkeypatch.setattr(sfb_video.stages.track, "fit_detection", fit_then_interrupt)
     out = tmp_path / "o"
     args = ["process", str(path), "--out", str(out), *FAST, "--set", "video.exposure_fraction=0.8"]
     assert main(args) == 130

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 from sfb_video.evaluation import datasets
 from sfb_video.evaluation.datasets import DATASETS, BenchmarkFrame, list_sequences, tight_box
 from tests.evaluation.fmo_fixture import FixtureDataset, write_fixture, write_plain_sequence

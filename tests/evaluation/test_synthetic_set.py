@@ -3,7 +3,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 from sfb_video.evaluation.synthetic_set import SET_FILE, benchmark_specs, ensure_set, hard_specs, list_synthetic
 from sfb_video.synth import ClipSpec, make_scene
 

@@ -3,7 +3,7 @@ import math
 import pytest
 import torch
 
-from sfb_video.checks import MeshError
+from sfb_video.errors import MeshError
 from sfb_video.geometry.mesh import MeshTopology, normalize_vertices, signed_volume
 from sfb_video.geometry.prototypes import PROTOTYPE_NAMES, load_prototype
 

@@ -10,7 +10,7 @@ import torch
 from sfb_video.config import RenderConfig
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.prototypes import load_prototype
-from sfb_video.model.formation import composite, exposure_times
+from sfb_video.model.formation import blend, exposure_times
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 
@@ -41,4 +41,4 @@ def test_rendering_in_batches_of_poses_changes_nothing() -> None:
     one_by_one = state.render_blurred(CAMERA, background, 8, dataclasses.replace(RenderConfig(), max_batch_pixels=1))
     assert torch.allclose(at_once, one_by_one, atol=1e-6)
     out = state.render(CAMERA, exposure_times(8), RenderConfig())
-    assert torch.allclose(at_once, composite(out.rgb, out.alpha, background), atol=1e-6)
+    assert torch.allclose(at_once, blend(out.rgb, out.alpha, background), atol=1e-6)

@@ -3,8 +3,8 @@ import math
 import pytest
 import torch
 
-from sfb_video.checks import MeshError, PoseError
 from sfb_video.config import RenderConfig
+from sfb_video.errors import MeshError, PoseError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
 from sfb_video.geometry.prototypes import load_prototype

@@ -8,14 +8,14 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from sfb_video.stages import composite
+from sfb_video.stages.export import render_frame
+from sfb_video.stages.types import FrameWithBackground
 
 from benchmarks.composite import partial_fit
 from sfb_video.config import load_config
 from sfb_video.results import FrameResult
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip
-from stages import composite
-from stages.background import FrameWithBackground
-from stages.export import render_frame
 
 CONFIG = load_config("fast")
 N = 4

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import torch
+from sfb_video.stages.detect import Neighbour, blob_colour, choose_blob, detect, difference_mask
+from sfb_video.stages.types import Prediction
 
 from sfb_video.config import load_config
-from stages.detect import Neighbour, Prediction, blob_colour, choose_blob, detect, difference_mask
 
 CONFIG = load_config("default").detect
 

@@ -7,20 +7,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from sfb_video.stages.fit import fit_detection
+from sfb_video.stages.masks import MaskSource, choose_masks, mask_centroids, orient_masks
+from sfb_video.stages.track import join
+from sfb_video.stages.types import Detection, FrameWithBackground
 
 from sfb_video import defmo
-from sfb_video.checks import SfbError
 from sfb_video.config import CropConfig, load_config
 from sfb_video.crop import Box, Crop
 from sfb_video.demo import demo_clip, demo_config
+from sfb_video.errors import SfbError
 from sfb_video.evaluation.synthetic import crop_masks
 from sfb_video.results import FrameResult
 from sfb_video.synth import SyntheticClip
-from stages.background import FrameWithBackground
-from stages.detect import Detection
-from stages.fit import fit_detection
-from stages.masks import MaskSource, choose_masks, mask_centroids, orient_masks
-from stages.track import join
 
 CPU = torch.device("cpu")
 CROP = CropConfig()

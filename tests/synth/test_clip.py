@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from sfb_video.checks import ConfigError, SfbError
+from sfb_video.errors import ConfigError, SfbError
 from sfb_video.geometry.rotation import axis_angle_to_matrix, exposure_rotations, quaternion_to_matrix
 from sfb_video.synth import (
     SHAPE_NAMES,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip, load_clip, save_clip, write_clip
 
 SPEC = ClipSpec(

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from sfb_video.checks import PoseError
+from sfb_video.errors import PoseError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.synth.raster import pose_points, rasterize
 from sfb_video.synth.shapes import make_shape

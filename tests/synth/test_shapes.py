@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from sfb_video.checks import SfbError
+from sfb_video.errors import SfbError
 from sfb_video.geometry.mesh import signed_volume
 from sfb_video.synth.shapes import SHAPE_NAMES, make_shape
 from sfb_video.synth.textures import TEXTURE_STYLES, procedural_texture

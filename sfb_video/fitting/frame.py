@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import torch
 
-from sfb_video.checks import SfbError
 from sfb_video.config import FitConfig, RenderConfig
 from sfb_video.crop import Crop
+from sfb_video.errors import SfbError
 from sfb_video.geometry.pose import pose_vertices
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.model import losses

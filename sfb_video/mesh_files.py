@@ -19,7 +19,7 @@ from PIL import Image
 from sfb_video.atomic import atomic_write_bytes, write_json
 from sfb_video.config import RenderConfig
 from sfb_video.crop import Crop
-from sfb_video.fitter import FitResult
+from sfb_video.fitting.frame import FitResult
 from sfb_video.geometry.rotation import matrix_to_axis_angle
 from sfb_video.imageio import to_uint8, write_image
 from sfb_video.model.motion import Motion

@@ -15,7 +15,7 @@ its frame best, its rotation carried to the window's start. Two choices are made
 not on one frame: the motion model (a bounce where one smooth path leaves the seeds' streak ends
 far apart, :func:`choose_motion`), and the start: fresh prototypes (a capsule for pens and
 keys) and, on a track's first window, the seed's prototype with the spin and texture that a
-search over spins finds (:mod:`sfb_video.spin`) compete with the seeded mesh for the first part
+search over spins finds (:mod:`sfb_video.fitting.spin`) compete with the seeded mesh for the first part
 of the fit, and the lowest joint L_I goes on.
 """
 
@@ -31,7 +31,8 @@ import torch
 
 from sfb_video.config import FitConfig, JointConfig, RenderConfig
 from sfb_video.crop import Crop
-from sfb_video.fitter import deterministic
+from sfb_video.fitting.frame import deterministic
+from sfb_video.fitting.spin import SpinScore, score_spin, search_spin, spin_grid, upsample_texture
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
 from sfb_video.geometry.pose import pose_vertices
@@ -44,7 +45,6 @@ from sfb_video.model.scene import ObjectState
 from sfb_video.model.shape import ShapeParams
 from sfb_video.model.trajectory import MOTION_MODELS, Trajectory, TrajectoryParams, interpolate
 from sfb_video.render import MeshRenderer
-from sfb_video.spin import SpinScore, score_spin, search_spin, spin_grid, upsample_texture
 
 StepCallback = Callable[[int, dict[str, float]], None]
 

@@ -1,5 +1,5 @@
 """Stage 4b, joint: the single-frame fits of each track -> one mesh, texture and trajectory per
-window of the track (:mod:`sfb_video.joint`).
+window of the track (:mod:`sfb_video.fitting.window`).
 
 A track's fitted frames are cut into windows of ``joint.window`` frames that slide by
 ``window - overlap`` (a short track is one window; the last window ends at the track's end). The
@@ -21,11 +21,13 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import torch
+from sfb_video.stages.composite import fit_quality
+from sfb_video.stages.types import FrameStatus, FrameWithBackground, Window
 
 from sfb_video.config import Config
 from sfb_video.crop import make_crop
+from sfb_video.fitting.window import Seed, WindowFrame, fit_window
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.joint import Seed, WindowFrame, fit_window
 from sfb_video.model.scene import ObjectState
 from sfb_video.results import (
     FrameResult,
@@ -38,12 +40,6 @@ from sfb_video.results import (
 )
 from sfb_video.run_folder import frame_path, window_path
 from sfb_video.timing import timed
-from stages.background import FrameWithBackground
-from stages.composite import fit_quality
-from stages.track import FrameStatus
-
-Window = tuple[int, list[int]]
-"""A window: its track's number and its frame indices, consecutive."""
 
 
 def track_windows(statuses: list[FrameStatus], size: int, overlap: int) -> list[Window]:
@@ -201,7 +197,7 @@ def fit_windows(
 
     Args:
         frames: the clip's frames and backgrounds, in order (read only as far as needed).
-        statuses: every frame's status, as :func:`stages.track.track_and_fit` returned them.
+        statuses: every frame's status, as :func:`sfb_video.stages.track.track_and_fit` returned them.
 
     Returns:
         every window's fit, in frame order (a window whose fit diverged is left out).

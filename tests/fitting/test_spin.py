@@ -11,12 +11,20 @@ import torch
 
 from sfb_video.config import RenderConfig
 from sfb_video.crop import Crop
+from sfb_video.fitting.spin import (
+    SpinScore,
+    fibonacci_axes,
+    score_spin,
+    search_spin,
+    solve_texture,
+    spin_grid,
+    texture_system,
+)
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.pose import pose_vertices
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.geometry.rotation import axis_angle_to_matrix
 from sfb_video.render import MeshRenderer
-from sfb_video.spin import SpinScore, fibonacci_axes, score_spin, search_spin, solve_texture, spin_grid, texture_system
 
 SETTINGS = RenderConfig(time_steps=8)
 CAMERA = PinholeCamera.from_fov(64, 48, 45.0)

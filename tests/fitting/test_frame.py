@@ -13,11 +13,11 @@ import statistics
 import pytest
 import torch
 
-from sfb_video.checks import SfbError
 from sfb_video.config import load_config
 from sfb_video.crop import make_crop
+from sfb_video.errors import SfbError
 from sfb_video.evaluation.synthetic import FrameScore, crop_masks, fit_synthetic_frame, score_fit, synthetic_crop
-from sfb_video.fitter import NoObjectError, WarmStart, fit_frame, planned_steps
+from sfb_video.fitting.frame import NoObjectError, WarmStart, fit_frame, planned_steps
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import axis_angle_to_matrix
 from sfb_video.model.motion import Motion

@@ -4,15 +4,15 @@ motion model from the single-frame fits."""
 from __future__ import annotations
 
 import torch
+from sfb_video.stages.types import FrameStatus
+from sfb_video.stages.windows import frame_windows, track_windows
 
 from sfb_video.config import JointConfig
+from sfb_video.fitting.window import Seed, choose_motion
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.prototypes import load_prototype
-from sfb_video.joint import Seed, choose_motion
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
-from stages.joint import frame_windows, track_windows
-from stages.track import FrameStatus
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
 E = 0.6
