@@ -29,10 +29,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-from sfb_video.stages.background import with_backgrounds
-from sfb_video.stages.export import render_frame
-from sfb_video.stages.process import ProcessOptions, process_clip
-from sfb_video.stages.types import FrameWithBackground
 
 from benchmarks.detect import BASE, SCENARIOS
 from sfb_video.config import Config, load_config
@@ -42,6 +38,10 @@ from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.results import FrameResult, load_result
 from sfb_video.run_folder import frame_path
+from sfb_video.stages.background import with_backgrounds
+from sfb_video.stages.export import render_frame
+from sfb_video.stages.process import ProcessOptions, process_clip
+from sfb_video.stages.types import FrameWithBackground
 from sfb_video.synth import ClipSpec, FrameTruth, SyntheticClip, generate_clip
 
 

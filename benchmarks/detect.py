@@ -25,12 +25,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+
+from sfb_video.config import Config, load_config
 from sfb_video.stages.background import running_median
 from sfb_video.stages.detect import choose_blob, moving_mask
 from sfb_video.stages.track import with_neighbours
 from sfb_video.stages.types import Frame
-
-from sfb_video.config import Config, load_config
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip
 from sfb_video.synth.pasted import paste_streak
 

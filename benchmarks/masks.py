@@ -16,8 +16,6 @@ import argparse
 from pathlib import Path
 
 import torch
-from sfb_video.stages.masks import MaskSource
-from sfb_video.stages.types import FrameWithBackground
 
 from sfb_video.config import load_config
 from sfb_video.crop import Box, Crop
@@ -25,6 +23,8 @@ from sfb_video.evaluation.runner import MODES, FrameRow, run_sequence
 from sfb_video.evaluation.synthetic import crop_masks
 from sfb_video.evaluation.synthetic_set import SyntheticSequence, ensure_set, list_synthetic
 from sfb_video.evaluation.tables import markdown, summarise
+from sfb_video.stages.masks import MaskSource
+from sfb_video.stages.types import FrameWithBackground
 
 
 def true_masks(sequence: SyntheticSequence) -> MaskSource:

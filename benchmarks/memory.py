@@ -24,10 +24,10 @@ from pathlib import Path
 
 import cv2
 import torch
-from sfb_video.stages.process import ProcessOptions, process_clip
 
 from sfb_video.config import load_config
 from sfb_video.demo import demo_clip, demo_config
+from sfb_video.stages.process import ProcessOptions, process_clip
 from sfb_video.video import VideoWriter
 
 GENERATED_WIDTH = 640

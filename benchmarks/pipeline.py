@@ -22,11 +22,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from sfb_video.stages.process import ProcessOptions, process_clip
 
 from benchmarks.memory import peak_mb
 from sfb_video import timing
 from sfb_video.config import load_config
+from sfb_video.stages.process import ProcessOptions, process_clip
 from sfb_video.synth import ClipSpec, generate_clip
 from sfb_video.video import VideoWriter
 

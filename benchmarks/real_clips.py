@@ -26,14 +26,14 @@ import time
 from pathlib import Path
 
 import torch
-from sfb_video.stages.process import ProcessOptions, clip_camera, process_clip, read_run
-from sfb_video.stages.read import probe
-from sfb_video.stages.windows import final_results
 
 from sfb_video.config import load_config
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion
 from sfb_video.results import FrameResult, load_results
+from sfb_video.stages.process import ProcessOptions, clip_camera, process_clip, read_run
+from sfb_video.stages.read import probe
+from sfb_video.stages.windows import final_results
 
 CLIPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "clips"
 

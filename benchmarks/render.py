@@ -31,7 +31,8 @@ import torch
 
 from sfb_video.config import RenderConfig, load_config
 from sfb_video.evaluation.synthetic import synthetic_crop
-from sfb_video.fitting.frame import Optimisation, deterministic
+from sfb_video.fitting.engine import deterministic
+from sfb_video.fitting.frame import FrameObjective, frame_optimisation
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.pose import pose_vertices
 from sfb_video.geometry.prototypes import load_prototype
@@ -155,7 +156,8 @@ def bench_fit_step(repeats: int, device: torch.device) -> dict[str, float | str]
     motion = MotionParams(crop.camera, fit.size_range, fit.max_size_ratio, fit.max_rotation_deg, fit.init_size)
     motion = motion.to(device)
     motion.start_at_streak(streak_from_mask(crop.object_mask))
-    step = Optimisation(crop, shape, motion, 10 * repeats + 10, False, None, fit, config.render)
+    objective = FrameObjective(crop, shape, motion, None, fit, config.render)
+    step = frame_optimisation(objective, 10 * repeats + 10, early_stop=False)
     with deterministic(device):  # as fit_frame runs it
         step.run(3, None)  # warm-up
         ms = _median_ms(lambda: step.run(1, None), repeats, device)

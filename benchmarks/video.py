@@ -22,11 +22,11 @@ import tempfile
 from pathlib import Path
 
 import torch
-from sfb_video.stages.process import ProcessOptions, process_clip
 
 from sfb_video.config import load_config
 from sfb_video.demo import demo_clip, demo_config, score_run, write_clip_video
 from sfb_video.results import load_results
+from sfb_video.stages.process import ProcessOptions, process_clip
 
 # Single-frame fits only: this compares the two ways of starting them (the joint refit is
 # measured by `sfb-video eval --mode joint`).

@@ -83,14 +83,14 @@ class ClipRow:
 
 def gather_clips(inputs: Sequence[str]) -> tuple[list[Path], list[str]]:
     """The clips named by ``inputs``: clips, folders of clips (their video files, sorted), or
-    lists of clips (:data:`LIST_SUFFIXES`). A path that does not exist is kept: its clip fails
-    with its own one-line error, and the others go on.
+    lists of clips (:data:`LIST_SUFFIXES`). A clip that does not exist is kept: it fails with its
+    own one-line error, and the others go on.
 
     Returns:
         the clips in order, and notes on inputs that named none (an empty folder or list).
 
     Raises:
-        SfbError: a list cannot be read.
+        SfbError: a list does not exist or cannot be read.
     """
     clips: list[Path] = []
     notes: list[str] = []
@@ -101,6 +101,9 @@ def gather_clips(inputs: Sequence[str]) -> tuple[list[Path], list[str]]:
             if not found:
                 notes.append(f"no video files in {printable(str(path))}")
             clips += found
+        elif path.suffix.lower() in LIST_SUFFIXES and not path.exists():
+            # A missing clip fails alone; a missing list names no clip at all.
+            raise SfbError(f"list of clips not found: {printable(str(path))}")
         elif path.suffix.lower() in LIST_SUFFIXES and path.is_file():
             try:
                 lines = path.read_text().splitlines()

@@ -111,7 +111,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from sfb_video.crop import find_object_box, make_crop
-    from sfb_video.fitting.frame import NoObjectError, fit_frame, planned_steps
+    from sfb_video.errors import NoObjectError
+    from sfb_video.fitting.frame import fit_frame, planned_steps
     from sfb_video.geometry.camera import PinholeCamera
     from sfb_video.imageio import read_image
     from sfb_video.mesh_files import write_fit

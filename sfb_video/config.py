@@ -194,6 +194,9 @@ class FitConfig(_Checked):
         super().__post_init__()
         if self.size_range[0] >= self.size_range[1]:
             raise ConfigError(f"fit.size_range must be (low, high) with low < high, got {self.size_range}")
+        weights = ("w_image", "w_silhouette", "w_difference", "w_texture", "w_laplacian")
+        if not any(getattr(self, w) for w in weights):
+            raise ConfigError(f"fit: every loss weight ({', '.join(weights)}) is 0, so there is nothing to fit")
 
 
 @dataclass(frozen=True)

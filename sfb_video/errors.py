@@ -35,6 +35,18 @@ class OutputError(SfbError):
     """An output could not be written: a full disk, a folder removed or made read-only mid-run."""
 
 
+class NoObjectError(SfbError):
+    """The frame shows nothing that differs from the background (or too little to fit)."""
+
+
+class DivergenceError(SfbError):
+    """A fit's loss was not finite from its first step: nothing was learnt to keep.
+
+    The only error a pipeline stage takes for "this fit diverged, go on without it"; any other
+    error (a device mismatch, CUDA out of memory) is a bug or a resource problem and is raised.
+    """
+
+
 def check_shape(x: torch.Tensor, shape: tuple[int | None, ...], name: str) -> None:
     """Raise :class:`SfbError` unless ``x`` has ``shape`` (``None`` matches any size)."""
     ok = x.dim() == len(shape) and all(s is None or s == d for s, d in zip(shape, x.shape, strict=True))

@@ -5,6 +5,13 @@ memory holds no images, only rerun's small per-chunk index (see ``WRITE_FOOTER``
 under its final name only when the recorder is closed; until then it is a hidden temporary file
 in the same folder (:func:`sfb_video.atomic.temporary_sibling`), removed if the run fails.
 
+rerun encodes the file (its own file sink, footer included) but does not write it to disk: it
+writes into a pipe, and a thread of ours copies the pipe into the temporary file with plain
+writes (:class:`_Pipe`). rerun's own file writer stops at a write error (a full disk) and says so
+only in its log, after which its flush times out and its disconnect waits forever; through the
+pipe, which is always drained, rerun's writer never fails, and a write error is an ``OSError`` of
+ours, reported as a one-line :class:`~sfb_video.errors.OutputError` at the next frame or on close.
+
 Entity layout (what each path holds):
 
     world                          static ViewCoordinates RDF: world = the camera frame (OpenCV,
@@ -55,8 +62,10 @@ pixels (x, y, w, h) spans [x, x + w] x [y, y + h].
 
 from __future__ import annotations
 
+import contextlib
 import os
-import shutil
+import tempfile
+import threading
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
@@ -82,10 +91,11 @@ JPEG_QUALITY = 90
 # measured). Everything else streams to disk; False makes memory flat but rerun then warns on
 # stderr and readers treat the file as the legacy format.
 WRITE_FOOTER = True
-# rerun's file writer stops on a write error (a full disk) and says so only in its own log; a
-# flush without a time limit then waits forever. Every frame is flushed with this limit, which
-# turns a dead writer into an error at once (a healthy one writes a frame in milliseconds).
+# rerun's writer only waits on our copy thread (:class:`_Pipe`), which never stops reading; the
+# limit is for a disk that stops answering (a healthy one takes a frame in milliseconds).
 FLUSH_TIMEOUT_S = 120.0
+# How much of the pipe the copy thread takes at a time.
+PIPE_READ_SIZE = 1 << 20
 MASK_CLASS = 1
 SUBFRAME_MASK_CLASS = 2
 # In object sizes (the unit of the 3D scene), so they scale with the object.
@@ -120,6 +130,7 @@ class Recorder(AtomicOutput):
         self._frame: int | None = None
         self._masks_shown = False
         self._tmp: Path | None = temporary_sibling(self.path, ".rrd")
+        self._pipe: _Pipe | None = None
         if recording_id is None:
             recording_id = str(uuid.uuid5(uuid.NAMESPACE_URL, f"{APPLICATION_ID}:{name}"))
         self._rec = rr.RecordingStream(application_id=APPLICATION_ID, recording_id=recording_id)
@@ -127,8 +138,13 @@ class Recorder(AtomicOutput):
         # fourth timeline the viewer might pick by default.
         self._rec.set_log_time_enabled(False)
         try:
-            self._rec.save(self._tmp, write_footer=WRITE_FOOTER)
-        except (RuntimeError, OSError) as e:
+            self._pipe = _Pipe(self._tmp)
+            self._rec.save(self._pipe.path, write_footer=WRITE_FOOTER)
+            self._pipe.start()
+        except OSError as e:
+            self.abort()
+            raise output_error(self.path, e) from None
+        except RuntimeError as e:
             self.abort()
             raise OutputError(f"cannot write the recording {self.path}: {str(e).splitlines()[0]}") from None
         try:
@@ -296,14 +312,21 @@ class Recorder(AtomicOutput):
 
     @timed("recording")
     def close(self) -> None:
-        """Finish the file and move it onto ``path``. Does nothing if already closed or aborted."""
+        """Finish the file and move it onto ``path``. Does nothing if already closed or aborted.
+
+        Raises:
+            OutputError: the file could not be written (a full disk: the footer, written last,
+                may be what does not fit); no temporary file is left then.
+        """
         if self._tmp is None:
             return
+        self._flush()  # aborts on an error
         tmp, self._tmp = self._tmp, None
         try:
-            # disconnect() writes the footer and closes the file; only then is it complete.
-            self._flush(tmp)
+            # disconnect() writes the footer and closes rerun's end of the pipe; the file is
+            # complete once the copy thread has written the last bytes.
             self._rec.disconnect()
+            self._finish_pipe()
             os.replace(tmp, self.path)
         except OSError as e:
             tmp.unlink(missing_ok=True)
@@ -319,6 +342,9 @@ class Recorder(AtomicOutput):
         tmp, self._tmp = self._tmp, None
         try:
             self._rec.disconnect()
+            # Its write error, if any, is moot: the file is removed.
+            with contextlib.suppress(OSError):
+                self._finish_pipe()
         finally:
             tmp.unlink(missing_ok=True)
 
@@ -356,24 +382,30 @@ class Recorder(AtomicOutput):
         self._check_open()
         self._rec.log(path, *archetypes, static=static, strict=True)
 
-    def _flush(self, tmp: Path | None = None) -> None:
-        """Wait until everything logged is in the file; a writer that died is an OutputError."""
-        tmp = tmp or self._tmp
+    def _flush(self) -> None:
+        """Hand everything logged so far to the copy thread, and raise the first error it met
+        writing the file (a full disk) as an OutputError, after aborting: the recording cannot be
+        completed, and the caller's ``with`` block must not wait on it.
+
+        The copy runs behind rerun's flush, so an error of the bytes just handed over surfaces at
+        the next flush (the next frame, or :meth:`close`)."""
+        self._check_open()
+        assert self._pipe is not None  # open means piped (abort and close drop both)
         try:
             self._rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         except RuntimeError as e:
-            folder = self.path.parent
-            if not folder.is_dir():
-                reason = f"its folder {folder} was removed"
-            elif shutil.disk_usage(folder).free < 1 << 20:
-                reason = "No space left on device"
-            else:
-                reason = f"rerun's file writer stopped ({str(e).splitlines()[0]})"
-            self._tmp = None
-            self._rec.disconnect()
-            if tmp is not None:
-                tmp.unlink(missing_ok=True)
-            raise OutputError(f"cannot write {self.path}: {reason}") from None
+            error = OutputError(f"cannot write {self.path}: the disk did not answer ({str(e).splitlines()[0]})")
+        else:
+            error = None if self._pipe.error is None else output_error(self.path, self._pipe.error)
+        if error is not None:
+            self.abort()
+            raise error
+
+    def _finish_pipe(self) -> None:
+        """Close the pipe after rerun closed its end: wait for the last bytes to be written."""
+        pipe, self._pipe = self._pipe, None
+        if pipe is not None:
+            pipe.finish(FLUSH_TIMEOUT_S)
 
     def _check_open(self) -> None:
         if self._tmp is None:
@@ -381,6 +413,102 @@ class Recorder(AtomicOutput):
 
     def _check_image(self, image: torch.Tensor, name: str) -> None:
         check_shape(image, (3, self.camera.height, self.camera.width), name)
+
+
+class _Pipe:
+    """A named pipe for rerun's file sink to write into, copied into ``target`` by a thread.
+
+    The pipe is made in a private temporary folder and its name removed once both ends are open
+    (:meth:`start`), so that nothing of it outlives the process. The thread reads until rerun
+    closes its end (on disconnect) and never stops reading before: after a write error it keeps
+    draining and drops what it reads, so rerun's writer is never blocked and its flush and
+    disconnect always return. The first error is kept in :attr:`error`.
+
+    Raises:
+        OSError: ``target`` cannot be opened, or the pipe cannot be made.
+    """
+
+    def __init__(self, target: Path) -> None:
+        self.error: OSError | None = None
+        self._thread: threading.Thread | None = None
+        self._out: int | None = os.open(target, os.O_WRONLY | os.O_TRUNC | os.O_CLOEXEC)
+        self._folder: Path | None = None
+        self._in: int | None = None
+        try:
+            self._folder = Path(tempfile.mkdtemp(prefix="sfb-video-recording-"))
+            self.path = self._folder / "pipe"
+            os.mkfifo(self.path, 0o600)
+            # Non-blocking, or opening the reading end would wait for a writer; rerun's save()
+            # opens its end synchronously, and finds this one there.
+            self._in = os.open(self.path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+        except BaseException:
+            self._close()
+            raise
+
+    def start(self) -> None:
+        """Start copying, once rerun has opened its end (rerun's ``save`` returned)."""
+        assert self._in is not None
+        self._remove_name()
+        os.set_blocking(self._in, True)
+        self._thread = threading.Thread(target=self._copy, name="sfb-video recording writer", daemon=True)
+        self._thread.start()
+
+    def finish(self, timeout_s: float) -> None:
+        """Wait for the copy to end (rerun has closed its end) and close the file.
+
+        Raises:
+            OSError: the first write error, or TimeoutError if the copy did not end in time.
+        """
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                # A disk that stopped answering: the thread (a daemon) is left to it.
+                raise TimeoutError(f"the recording was not written within {timeout_s:g} s")
+        self._close()
+        if self.error is not None:
+            raise self.error
+
+    def _copy(self) -> None:
+        assert self._in is not None and self._out is not None
+        try:
+            while chunk := os.read(self._in, PIPE_READ_SIZE):
+                if self.error is None:
+                    try:
+                        _write_all(self._out, chunk)
+                    except OSError as e:
+                        self.error = e
+        except OSError as e:  # reading a pipe fails only if something is badly wrong; keep it
+            self.error = self.error or e
+        finally:
+            self._close()
+
+    def _close(self) -> None:
+        """Close both descriptors and remove the pipe's name; safe to call more than once."""
+        fd_in, fd_out, self._in, self._out = self._in, self._out, None, None
+        if fd_in is not None:
+            with contextlib.suppress(OSError):
+                os.close(fd_in)
+        if fd_out is not None:
+            try:
+                os.close(fd_out)
+            except OSError as e:  # some file systems (NFS) report a failed write only here
+                self.error = self.error or e
+        self._remove_name()
+
+    def _remove_name(self) -> None:
+        folder, self._folder = self._folder, None
+        if folder is not None:
+            with contextlib.suppress(OSError):
+                (folder / "pipe").unlink(missing_ok=True)
+                folder.rmdir()
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    """Write all of ``data`` to ``fd``: a write may take only part of it (a short write just
+    before the disk is full), and only the next one reports why."""
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
 
 
 def _jpeg(image: torch.Tensor) -> rr.EncodedImage | rr.Image:

@@ -17,12 +17,12 @@ from itertools import chain, islice
 from pathlib import Path
 
 import torch
-from sfb_video.stages.read import read_frames
-from sfb_video.stages.types import Frame, FrameWithBackground
 
 from sfb_video.config import VideoConfig
 from sfb_video.errors import ConfigError, SfbError
 from sfb_video.imageio import as_float, read_image
+from sfb_video.stages.read import read_frames
+from sfb_video.stages.types import Frame, FrameWithBackground
 from sfb_video.timing import timed, timed_iter
 
 MEDIAN_BAND_VALUES = 1 << 22

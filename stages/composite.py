@@ -18,13 +18,13 @@ import math
 import cv2
 import numpy as np
 import torch
-from sfb_video.stages.detect import difference_image, hysteresis, weak_level
 
 from sfb_video.config import DetectConfig, RenderConfig
 from sfb_video.crop import Box
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
+from sfb_video.stages.detect import difference_image, hysteresis, weak_level
 
 FEATHER_PX = 3
 """The region's edge blends from the composite to the frame over about this many pixels."""

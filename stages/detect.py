@@ -19,10 +19,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import torch
-from sfb_video.stages.types import Detection, Prediction
 
 from sfb_video.config import DetectConfig
 from sfb_video.imageio import as_float
+from sfb_video.stages.types import Detection, Prediction
 from sfb_video.timing import timed
 
 

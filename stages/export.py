@@ -21,10 +21,6 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from sfb_video.stages.composite import BLUR_POSES, explained, fitted_region, region_box
-from sfb_video.stages.detect import difference_image, threshold_difference
-from sfb_video.stages.types import FrameStatus, FrameWithBackground, Window
-from sfb_video.stages.windows import frame_windows, with_joint
 
 from sfb_video.atomic import atomic_write_bytes
 from sfb_video.config import Config
@@ -49,6 +45,10 @@ from sfb_video.run_folder import (
     track_mesh_path,
     window_path,
 )
+from sfb_video.stages.composite import BLUR_POSES, explained, fitted_region, region_box
+from sfb_video.stages.detect import difference_image, threshold_difference
+from sfb_video.stages.types import FrameStatus, FrameWithBackground, Window
+from sfb_video.stages.windows import frame_windows, with_joint
 from sfb_video.video import VideoWriter
 
 

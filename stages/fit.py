@@ -12,8 +12,6 @@ import dataclasses
 import time
 
 import torch
-from sfb_video.stages.masks import MaskSource, orient_masks
-from sfb_video.stages.types import Detection, FrameWithBackground
 
 from sfb_video.config import Config
 from sfb_video.crop import make_crop
@@ -21,6 +19,8 @@ from sfb_video.fitting.frame import WarmStart, fit_frame
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion, continue_turning
 from sfb_video.results import FrameResult
+from sfb_video.stages.masks import MaskSource, orient_masks
+from sfb_video.stages.types import Detection, FrameWithBackground
 from sfb_video.timing import timed
 
 

@@ -17,12 +17,12 @@ from pathlib import Path
 
 import torch
 from kornia.feature import DeFMO
-from sfb_video.stages.types import FrameWithBackground
 
 from sfb_video.config import CropConfig
 from sfb_video.crop import Box, Crop
 from sfb_video.defmo import cache_dir, defmo_masks, download_weights, has_weights, load_defmo
 from sfb_video.errors import SfbError
+from sfb_video.stages.types import FrameWithBackground
 
 MODES = ("auto", "defmo", "diff")
 

@@ -11,7 +11,6 @@ import math
 from pathlib import Path
 
 import torch
-from sfb_video.stages.windows import final_results
 
 from sfb_video.config import Config
 from sfb_video.errors import SfbError
@@ -22,6 +21,7 @@ from sfb_video.imageio import write_image
 from sfb_video.model.scene import ObjectState
 from sfb_video.render import MeshRenderer
 from sfb_video.run_folder import NOVEL_VIEWS, ensure_folder, novel_view_path
+from sfb_video.stages.windows import final_results
 from sfb_video.video import VideoWriter
 
 SIZE = (320, 240)

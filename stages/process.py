@@ -18,13 +18,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from sfb_video.stages.background import with_backgrounds
-from sfb_video.stages.export import Exported, export_frames, write_csv
-from sfb_video.stages.masks import MaskSource, choose_masks, print_line
-from sfb_video.stages.read import probe
-from sfb_video.stages.track import track_and_fit
-from sfb_video.stages.types import FrameStatus
-from sfb_video.stages.windows import fit_windows, track_windows
 from tqdm import tqdm
 
 from sfb_video.atomic import write_json
@@ -45,6 +38,13 @@ from sfb_video.run_folder import (
     saved_frames,
     window_path,
 )
+from sfb_video.stages.background import with_backgrounds
+from sfb_video.stages.export import Exported, export_frames, write_csv
+from sfb_video.stages.masks import MaskSource, choose_masks, print_line
+from sfb_video.stages.read import probe
+from sfb_video.stages.track import track_and_fit
+from sfb_video.stages.types import FrameStatus
+from sfb_video.stages.windows import fit_windows, track_windows
 from sfb_video.timing import timed
 from sfb_video.video import VideoInfo
 

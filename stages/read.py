@@ -10,10 +10,9 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
-from sfb_video.stages.types import Frame
-
 from sfb_video.config import VideoConfig
 from sfb_video.errors import SfbError
+from sfb_video.stages.types import Frame
 from sfb_video.timing import timed_iter
 from sfb_video.video import VideoInfo, VideoReader
 

@@ -19,17 +19,17 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import torch
-from sfb_video.stages.detect import Neighbour, choose_blob, difference_mask, moving_mask, still_there
-from sfb_video.stages.fit import continued, fit_detection
-from sfb_video.stages.masks import MaskSource
-from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground, Prediction
 
 from sfb_video.config import Config
-from sfb_video.fitting.frame import NoObjectError
+from sfb_video.errors import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion
 from sfb_video.results import FrameResult, load_result, save_result
 from sfb_video.run_folder import frame_path, saved_frames
+from sfb_video.stages.detect import Neighbour, choose_blob, difference_mask, moving_mask, still_there
+from sfb_video.stages.fit import continued, fit_detection
+from sfb_video.stages.masks import MaskSource
+from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground, Prediction
 
 StepReport = Callable[[FrameStatus, FrameResult | None], None]
 

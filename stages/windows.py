@@ -17,16 +17,17 @@ middle is nearest, :func:`frame_windows`).
 from __future__ import annotations
 
 import dataclasses
+import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import torch
-from sfb_video.stages.composite import fit_quality
-from sfb_video.stages.types import FrameStatus, FrameWithBackground, Window
 
 from sfb_video.config import Config
 from sfb_video.crop import make_crop
-from sfb_video.fitting.window import Seed, WindowFrame, fit_window
+from sfb_video.errors import DivergenceError
+from sfb_video.fitting.path import Seed
+from sfb_video.fitting.window import WindowFrame, fit_window
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.scene import ObjectState
 from sfb_video.results import (
@@ -39,6 +40,8 @@ from sfb_video.results import (
     save_window,
 )
 from sfb_video.run_folder import frame_path, window_path
+from sfb_video.stages.composite import fit_quality
+from sfb_video.stages.types import FrameStatus, FrameWithBackground, Window
 from sfb_video.timing import timed
 
 
@@ -226,9 +229,9 @@ def fit_windows(
             previous = previous_window(windows, done, track, members[0])
             try:
                 window = fit_track_window(track, members, crops, single, previous, camera, config)
-            except RuntimeError as exc:
+            except DivergenceError as exc:
                 # Non-finite from the first step: the frames keep their single-frame fits.
-                print(f"joint fit of frames {members[0]}-{members[-1]} skipped: {exc}")
+                print(f"joint fit of frames {members[0]}-{members[-1]} skipped: {exc}", file=sys.stderr)
             else:
                 save_window(folder, window)
                 done[members[0]] = window

@@ -65,3 +65,10 @@ def test_resolved_config_round_trips_through_yaml(tmp_path: Path) -> None:
     path = tmp_path / "config.yaml"
     path.write_text(yaml.safe_dump(config_to_dict(cfg)))
     assert load_config(path) == cfg
+
+
+def test_every_loss_weight_zero_is_a_config_error_not_a_traceback() -> None:
+    zero = [f"fit.{w}=0" for w in ("w_image", "w_silhouette", "w_difference", "w_texture", "w_laplacian")]
+    with pytest.raises(ConfigError, match=r"every loss weight .* is 0"):
+        load_config("fast", zero)
+    load_config("fast", zero[1:])  # L_I alone is a fit

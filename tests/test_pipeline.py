@@ -15,17 +15,17 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
-import sfb_video.stages.track
 import torch
 import trimesh
 from rerun.chunk import RrdReader
-from sfb_video.stages.process import ProcessOptions, process_clip
 
+import sfb_video.stages.track
 from sfb_video.cli import main
 from sfb_video.config import Config, load_config
 from sfb_video.demo import demo_clip, demo_config, score_run, write_clip_video
 from sfb_video.model.motion import continue_motion
 from sfb_video.results import load_results
+from sfb_video.stages.process import ProcessOptions, process_clip
 from sfb_video.synth import SyntheticClip
 
 CPU = torch.device("cpu")

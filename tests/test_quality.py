@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 import torch
-from sfb_video.stages.process import ProcessOptions, process_clip
 
 from sfb_video.config import load_config
 from sfb_video.demo import demo_clip, demo_config, score_run, write_clip_video
+from sfb_video.stages.process import ProcessOptions, process_clip
 
 # Measured by benchmarks.video on this clip: mean TIoU 0.813, PSNR 19.7 dB over its 8 frames.
 MIN_TIOU, MIN_PSNR = 0.75, 18.5

@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+
+from benchmarks.detect import aerobie_clip, box_iou
+from sfb_video.config import load_config
 from sfb_video.stages.background import running_median, with_backgrounds
 from sfb_video.stages.detect import choose_blob, moving_mask
 from sfb_video.stages.process import ProcessOptions, process_clip
 from sfb_video.stages.track import with_neighbours
 from sfb_video.stages.types import Frame
-
-from benchmarks.detect import aerobie_clip, box_iou
-from sfb_video.config import load_config
 
 CLIPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "clips"
 pytestmark = pytest.mark.skipif(not CLIPS.is_dir(), reason="needs ../shared/data/clips beside the checkout")

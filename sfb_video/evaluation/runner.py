@@ -13,9 +13,9 @@ unscored frame keeps its initial 0.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
+import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -25,9 +25,9 @@ import numpy as np
 import torch
 
 from sfb_video.config import Config
+from sfb_video.errors import DivergenceError, NoObjectError
 from sfb_video.evaluation.datasets import BenchmarkFrame
 from sfb_video.evaluation.scoring import render_estimate, score_estimate
-from sfb_video.fitting.frame import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.results import FrameResult, SavedWindow
 from sfb_video.stages.fit import fit_detection
@@ -259,9 +259,11 @@ def _joint_rows(
             crops[i] = window_frame(inputs, frame.box, result, camera, config, device)
         previous = previous_window(windows, done, track, members[0])
         started = time.perf_counter()
-        # A window that diverges is left out: its frames keep their single-frame fits.
-        with contextlib.suppress(RuntimeError):
+        try:
             done[members[0]] = fit_track_window(track, members, crops, lambda i: fitted[i][1], previous, camera, config)
+        except DivergenceError as exc:
+            # Left out, as the pipeline leaves it out: its frames keep their single-frame fits.
+            print(f"{sequence.name}: joint fit of frames {members[0]}-{members[-1]} skipped: {exc}", file=sys.stderr)
         for i in members:
             seconds[i] += (time.perf_counter() - started) / len(members)
     owner = frame_windows([w for w in windows if w[1][0] in done and done[w[1][0]].accepted])

@@ -13,10 +13,15 @@ The fit starts from single-frame fits of the same frames (the seeds): the trajec
 to their streak ends in the image, and the mesh and texture are those of the seed that explains
 its frame best, its rotation carried to the window's start. Two choices are made on the window,
 not on one frame: the motion model (a bounce where one smooth path leaves the seeds' streak ends
-far apart, :func:`choose_motion`), and the start: fresh prototypes (a capsule for pens and
-keys) and, on a track's first window, the seed's prototype with the spin and texture that a
-search over spins finds (:mod:`sfb_video.fitting.spin`) compete with the seeded mesh for the first part
-of the fit, and the lowest joint L_I goes on.
+far apart, :func:`~sfb_video.fitting.path.choose_motion`), and the start: fresh prototypes (a
+capsule for pens and keys) and, on a track's first window, the seed's prototype with the spin
+and texture that a search over spins finds (:mod:`sfb_video.fitting.spin`) compete with the
+seeded mesh for the first part of the fit, and the lowest joint L_I goes on
+(:func:`sfb_video.fitting.engine.race`).
+
+The fit in parts: :func:`start_window` (the path fitted to the seeds, the motion model, what
+every candidate shares), :func:`window_candidate` (one candidate's optimisation),
+:func:`searched_spin`, and :func:`fit_window`, which races them.
 """
 
 from __future__ import annotations
@@ -24,14 +29,25 @@ from __future__ import annotations
 import copy
 import statistics
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import torch
 
 from sfb_video.config import FitConfig, JointConfig, RenderConfig
 from sfb_video.crop import Crop
-from sfb_video.fitting.frame import deterministic
+from sfb_video.errors import DivergenceError
+from sfb_video.fitting.engine import (
+    Optimisation,
+    Step,
+    StepCallback,
+    deterministic,
+    race,
+    seed_texture,
+    seeded,
+    weighted_sum,
+)
+from sfb_video.fitting.frame import frame_terms
+from sfb_video.fitting.path import Seed, apparent_px, choose_motion, fit_path, measured_exposure, path_params
 from sfb_video.fitting.spin import SpinScore, score_spin, search_spin, spin_grid, upsample_texture
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
@@ -40,13 +56,10 @@ from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.geometry.rotation import axis_angle_to_matrix
 from sfb_video.model import losses
 from sfb_video.model.formation import exposure_times
-from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.model.shape import ShapeParams
-from sfb_video.model.trajectory import MOTION_MODELS, Trajectory, TrajectoryParams, interpolate
+from sfb_video.model.trajectory import Trajectory, TrajectoryParams
 from sfb_video.render import MeshRenderer
-
-StepCallback = Callable[[int, dict[str, float]], None]
 
 
 @dataclass(frozen=True)
@@ -62,21 +75,6 @@ class WindowFrame:
     index: int
     crop: Crop
     masks: torch.Tensor | None = None
-
-
-@dataclass(frozen=True)
-class Seed:
-    """A single-frame fit of one frame of the window, where the joint fit starts.
-
-    Attributes:
-        index: the frame's index; state: its mesh, texture and motion (camera coordinates, in
-        the track's time direction); prototype: the prototype it deformed; image_loss: its L_I.
-    """
-
-    index: int
-    state: ObjectState
-    prototype: str
-    image_loss: float
 
 
 @dataclass(frozen=True)
@@ -115,239 +113,181 @@ class JointResult:
         return ObjectState(self.vertices, self.topology, self.texture, self.trajectory.frame_motion(index))
 
 
-def _apparent_px(motion: Motion, camera: PinholeCamera) -> float:
-    return float(camera.fy / motion.x0[2].clamp_min(1e-6))
+class WindowObjective:
+    """The joint loss of one candidate: the mean over the window's frames of their weighted data
+    terms (each in its crop, as the single-frame fit weighs them), plus L_T and L_L once; a step
+    keeps each frame's terms for the snapshot."""
+
+    def __init__(self, window: WindowStart, shape: ShapeParams, path: TrajectoryParams) -> None:
+        self.window, self.shape, self.path = window, shape, path
+        self.modules = (shape, path)
+
+    def __call__(self, progress: float) -> Step:
+        window, shape, config = self.window, self.shape, self.window.fit_config
+        rotations, positions = self.path(window.frame_times, window.taus)
+        vertices, texture = shape.vertices(), shape.texture()
+        per_frame: dict[int, dict[str, float]] = {}
+        frame_total = torch.zeros((), device=window.taus.device)
+        for k, frame in enumerate(window.frames):
+            posed = pose_vertices(vertices, rotations[k], positions[k])
+            rendered, alpha = window.renderers[k].blurred(posed, shape.topology, texture, frame.crop.background)
+            terms, weights = frame_terms(frame.crop, frame.masks, rendered, alpha, config, progress)
+            frame_total = frame_total + weighted_sum(terms, weights)
+            per_frame[frame.index] = {k: float(v.detach()) for k, v in terms.items()}
+        texture_tv = losses.texture_tv(texture)
+        laplacian = losses.laplacian(vertices, shape.topology.edges)
+        total = frame_total / len(window.frames) + config.w_texture * texture_tv + config.w_laplacian * laplacian
+        record = {
+            "image": statistics.fmean(r["image"] for r in per_frame.values()),
+            "texture": float(texture_tv.detach()),
+            "laplacian": float(laplacian.detach()),
+            "exposure": float(self.path.exposure().detach()),
+            "total": float(total.detach()),
+        }
+        return Step(total, record, per_frame)
 
 
-def _streak_ends(seeds: list[Seed], first: int, exposure: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Window times (2S,) and camera-space points (2S, 3) of the seeds' streak ends, in time order."""
-    times, points = [], []
-    for seed in seeds:
-        m = seed.state.motion
-        times += [seed.index - first, seed.index - first + exposure]
-        points += [m.x0, m.x0 + m.dx]
-    t = torch.tensor(times, dtype=torch.float32)
-    order = torch.argsort(t)
-    return t[order], torch.stack(points).float()[order]
+@dataclass(frozen=True)
+class WindowStart:
+    """What every candidate of a window starts from.
 
-
-def _fit_path(params: TrajectoryParams, seeds: list[Seed], first: int, exposure: float, steps: int) -> torch.Tensor:
-    """Fit the anchors to the seeds' streak ends in the image (no rendering): in pixels (in
-    units of the reference diameter), and loosely in apparent size, which sets depth but which
-    one frame measures poorly (a thin object's size barely shows).
-
-    Returns:
-        (2S,) each streak end's distance from the fitted path in the image, in reference diameters.
+    Attributes:
+        frames: the window's frames, in time order; first: the first one's index.
+        seeds: their single-frame fits; best_seed: the one whose mesh, texture and rotation the
+            seeded candidate takes.
+        path: the trajectory fitted to the seeds' streak ends (each candidate gets a copy).
+        model, bounce: the motion model chosen on the seeds and, for a bounce, its break's time.
+        exposure_fraction: where e starts (what the seeds measure when e is learnt).
+        frame_times: (F,) each frame's time in the window; taus: (T,) the exposure's times.
+        renderers: one per frame, in its crop's camera.
+        fit_config, config: the loss weights and learning rates; the joint fit's settings.
     """
-    t, target = _streak_ends(seeds, first, exposure)
-    uv, depth = params.camera.project(target)
-    log_size = torch.log(params.camera.fy / depth)
-    # Start from the seeds themselves, interpolated at the anchors' times in the image and in
-    # log depth: extrapolated in camera space, a depth can end behind the camera (circle_fast).
-    start_uv = torch.stack([_interp(params.times, t, uv[:, k]) for k in range(2)], -1)
-    start_depth = torch.exp(_interp(params.times, t, torch.log(depth)))
-    params.load_anchors(params.camera.unproject(start_uv, start_depth))
-    optimiser = torch.optim.Adam([params.anchors_raw], lr=0.05)
-    for _ in range(steps):
-        optimiser.zero_grad(set_to_none=True)
-        path = interpolate(params.anchors(), params.breaks, params.degree, t)
-        p_uv, p_depth = params.camera.project(path)
-        loss = ((p_uv - uv) / params.ref_px).square().sum(-1).mean()
-        loss = loss + 0.25 * (torch.log(params.camera.fy / p_depth) - log_size).square().mean()
-        loss.backward()
-        optimiser.step()
-    with torch.no_grad():
-        path = interpolate(params.anchors(), params.breaks, params.degree, t)
-        return ((params.camera.project(path)[0] - uv) / params.ref_px).norm(dim=-1)
 
-
-def _interp(x: torch.Tensor, xp: torch.Tensor, fp: torch.Tensor) -> torch.Tensor:
-    """Linear interpolation of (xp, fp) at x, extended linearly beyond the ends."""
-    if xp.shape[0] == 1:
-        return fp.expand_as(x).clone()
-    i = torch.searchsorted(xp, x).clamp(1, xp.shape[0] - 1)
-    x0, x1, f0, f1 = xp[i - 1], xp[i], fp[i - 1], fp[i]
-    w = (x - x0) / (x1 - x0).clamp_min(1e-9)
-    return f0 + w * (f1 - f0)
-
-
-def measured_exposure(seeds: list[Seed], camera: PinholeCamera) -> float | None:
-    """The exposure fraction the seeds show: the median over consecutive frames of a streak's
-    length in the image over the distance from its start to the next frame's start (a shutter
-    open for the fraction e of the interval draws e of the way). None without two consecutive
-    seeds that move."""
-    ratios = []
-    by_index = {s.index: s.state.motion for s in seeds}
-    for index, motion in by_index.items():
-        following = by_index.get(index + 1)
-        if following is None:
-            continue
-        uv = camera.project(torch.stack((motion.x0, motion.x0 + motion.dx, following.x0)))[0]
-        step = float((uv[2] - uv[0]).norm())
-        if step > 1.0:
-            ratios.append(float((uv[1] - uv[0]).norm()) / step)
-    return min(max(statistics.median(ratios), 0.05), 1.0) if ratios else None
-
-
-def _path_params(
-    model: str,
-    bounce: float | None,
-    end: float,
-    camera: PinholeCamera,
-    ref_px: float,
-    exposure_fraction: float,
-    config: JointConfig,
-    max_rotation_deg: float,
-) -> TrajectoryParams:
-    degree, pieces = MOTION_MODELS[model]
-    breaks = torch.tensor([0.0, end] if pieces == 1 else [0.0, float(bounce), end])
-    return TrajectoryParams(camera, breaks, degree, ref_px, exposure_fraction, config.learn_exposure, max_rotation_deg)
-
-
-def choose_motion(
-    seeds: list[Seed],
-    first: int,
-    end: float,
-    camera: PinholeCamera,
-    exposure_fraction: float,
-    config: JointConfig,
-) -> tuple[str, float | None]:
-    """The motion model of a window and, for a bounce, the time of its break.
-
-    A configured model is used as is (a bounce's break then goes where it fits the seeds best).
-    ``auto`` takes constant acceleration unless one smooth path leaves some seed's streak end
-    more than ``config.bounce_residual`` reference diameters away, and a path that breaks in
-    one of the gaps between exposures brings every end within that distance and halves the
-    worst miss (seeds that are simply wrong, a fit of the wrong blob, are not taken for a
-    bounce: breaking the path does not bring them near).
-
-    Returns:
-        the model's name and the bounce's window time (None without a bounce).
-    """
-    ref_px = statistics.median(_apparent_px(s.state.motion, camera) for s in seeds)
-
-    def residual(model: str, bounce: float | None) -> float:
-        params = _path_params(model, bounce, end, camera, ref_px, exposure_fraction, config, 0.0)
-        return float(_fit_path(params, seeds, first, exposure_fraction, config.path_steps).max())
-
-    if config.motion not in ("auto", "bounce"):
-        return config.motion, None
-    smooth = residual("constant_acceleration", None) if config.motion == "auto" else float("inf")
-    if len(seeds) < 3 or smooth <= config.bounce_residual:
-        return "constant_acceleration", None
-    # The break in the middle of a gap: the bounce happened while the shutter was closed, or
-    # near enough (a break during an exposure is seen as a bend of one streak).
-    gaps = [k + (1 + exposure_fraction) / 2 for k in range(round(end) - 1)]
-    broken = {
-        g: residual("bounce", g)
-        for g in gaps
-        if min(s.index for s in seeds) - first < g < max(s.index for s in seeds) - first
-    }
-    best = min(broken, key=broken.__getitem__)
-    if config.motion == "bounce" or broken[best] <= min(0.5 * smooth, config.bounce_residual):
-        return "bounce", best
-    return "constant_acceleration", None
-
-
-def _frame_loss(
-    frame: WindowFrame,
-    rotations: torch.Tensor,
-    positions: torch.Tensor,
-    vertices: torch.Tensor,
-    texture: torch.Tensor,
-    shape: ShapeParams,
-    renderer: MeshRenderer,
-    config: FitConfig,
-    progress: float,
-) -> tuple[torch.Tensor, dict[str, float]]:
-    crop = frame.crop
-    posed = pose_vertices(vertices, rotations, positions)
-    rendered, alpha = renderer.blurred(posed, shape.topology, texture, crop.background)
-    terms = {"image": losses.image_loss(crop.image, rendered, crop.object_mask)}
-    weights = {"image": config.w_image}
-    if frame.masks is not None:
-        terms["silhouette"] = losses.silhouette_loss(frame.masks, alpha)
-        weights["silhouette"] = config.w_silhouette
-    else:
-        terms["difference"] = losses.difference_loss(crop.object_mask, alpha)
-        weights["difference"] = config.w_difference * max(0.0, 1 - progress / config.difference_fade)
-    total = sum(weights[k] * v for k, v in terms.items() if weights[k] != 0)
-    return total, {k: float(v.detach()) for k, v in terms.items()}
-
-
-class _WindowFit:
-    """One candidate shape's joint fit of a window, which can be run in parts (a trial, then
-    the rest) and keeps its parameters at the lowest mean L_I seen."""
-
-    def __init__(
-        self,
-        frames: list[WindowFrame],
-        renderers: list[MeshRenderer],
-        shape: ShapeParams,
-        params: TrajectoryParams,
-        fit_config: FitConfig,
-        config: JointConfig,
-        taus: torch.Tensor,
-    ) -> None:
-        self.frames, self.renderers, self.shape, self.params = frames, renderers, shape, params
-        self.fit_config, self.config, self.taus = fit_config, config, taus
-        first = frames[0].index
-        self.frame_times = torch.tensor([float(f.index - first) for f in frames], device=taus.device)
-        rotation = (params.quat0, params.spin_raw)
-        groups = [
-            {"params": [p for p in shape.parameters() if p.requires_grad]},
-            {"params": [params.anchors_raw], "lr": config.lr_path},
-            {"params": [p for p in rotation if p.requires_grad], "lr": fit_config.lr_rotation},
-            {"params": [params.exposure_raw] if params.exposure_raw.requires_grad else [], "lr": config.lr_exposure},
-        ]
-        self.optimiser = torch.optim.Adam([g for g in groups if g["params"]], lr=fit_config.lr, fused=True)
-        self.step = 0
-        self.curve: list[dict[str, float]] = []
-        self.best: tuple[float, dict, dict, dict[int, dict[str, float]], float] | None = None
+    frames: list[WindowFrame]
+    first: int
+    seeds: list[Seed]
+    best_seed: Seed
+    path: TrajectoryParams
+    model: str
+    bounce: float | None
+    exposure_fraction: float
+    frame_times: torch.Tensor
+    taus: torch.Tensor
+    renderers: list[MeshRenderer]
+    fit_config: FitConfig
+    config: JointConfig
 
     @property
-    def best_image_loss(self) -> float:
-        return float("inf") if self.best is None else self.best[0]
+    def device(self) -> torch.device:
+        return self.taus.device
 
-    def run(self, steps: int, on_step: StepCallback | None) -> None:
-        fit_config, shape, params = self.fit_config, self.shape, self.params
-        device = self.taus.device
-        for _ in range(steps):
-            self.optimiser.zero_grad(set_to_none=True)
-            rotations, positions = params(self.frame_times, self.taus)
-            vertices, texture = shape.vertices(), shape.texture()
-            per_frame: dict[int, dict[str, float]] = {}
-            frame_total = torch.zeros((), device=device)
-            progress = self.step / self.config.iterations
-            for k, frame in enumerate(self.frames):
-                total_k, record_k = _frame_loss(
-                    frame, rotations[k], positions[k], vertices, texture, shape, self.renderers[k], fit_config, progress
-                )
-                frame_total = frame_total + total_k
-                per_frame[frame.index] = record_k
-            texture_tv = losses.texture_tv(texture)
-            laplacian = losses.laplacian(vertices, shape.topology.edges)
-            total = frame_total / len(self.frames)
-            total = total + fit_config.w_texture * texture_tv + fit_config.w_laplacian * laplacian
-            if not torch.isfinite(total):
-                return
-            image = statistics.fmean(r["image"] for r in per_frame.values())
-            record = {
-                "image": image,
-                "texture": float(texture_tv.detach()),
-                "laplacian": float(laplacian.detach()),
-                "exposure": float(params.exposure().detach()),
-                "total": float(total.detach()),
-            }
-            self.curve.append(record)
-            if on_step is not None:
-                on_step(self.step, record)
-            if image < self.best_image_loss:
-                state = tuple({k: v.detach().clone() for k, v in m.state_dict().items()} for m in (shape, params))
-                self.best = (image, state[0], state[1], per_frame, record["total"])
-            total.backward()
-            self.optimiser.step()
-            self.step += 1
+    def oriented(self, spin: torch.Tensor) -> TrajectoryParams:
+        """The seeds' path turning at ``spin`` (3,) rad per frame interval, the best seed keeping
+        its orientation at its frame's start whatever the spin (the base path, changed in place)."""
+        at = float(self.best_seed.index - self.first)
+        self.path.load_rotation(axis_angle_to_matrix(-at * spin) @ self.best_seed.state.motion.rot0, spin)
+        return self.path
+
+    def poses(self, spin: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(F, T, 3, 3) rotations and (F, T, 3) positions of the frames on the seeds' path at ``spin``."""
+        with torch.no_grad():
+            return self.oriented(spin)(self.frame_times, self.taus)
+
+
+def start_window(
+    frames: list[WindowFrame],
+    seeds: list[Seed],
+    camera: PinholeCamera,
+    fit_config: FitConfig,
+    config: JointConfig,
+    render_config: RenderConfig,
+    exposure_fraction: float,
+    shape_from: Seed | None = None,
+) -> WindowStart:
+    """The window's path, fitted to its seeds' streak ends, and what its candidates share.
+
+    Raises:
+        DivergenceError: when no finite path fits the seeds.
+    """
+    device = frames[0].crop.image.device
+    first = frames[0].index
+    end = frames[-1].index - first + 1.0
+    if config.learn_exposure:
+        # The seeds' streaks and spacing measure e better than the configured start, which may be
+        # far off (a short shutter taken for an open one puts each streak's end at the next
+        # frame's start, and the path then has to jump).
+        exposure_fraction = measured_exposure(seeds, camera) or exposure_fraction
+    model, bounce = choose_motion(seeds, first, end, camera, exposure_fraction, config)
+    ref_px = statistics.median(apparent_px(s.state.motion, camera) for s in seeds)
+    path = path_params(model, bounce, end, camera, ref_px, exposure_fraction, config, fit_config.max_rotation_deg)
+    fit_path(path, seeds, first, exposure_fraction, config.path_steps)
+    if not bool(torch.isfinite(path.anchors_raw).all()):
+        raise DivergenceError("no finite path through the seeds' streaks")
+    return WindowStart(
+        frames=frames,
+        first=first,
+        seeds=seeds,
+        best_seed=shape_from or min(seeds, key=lambda s: s.image_loss),
+        path=path,
+        model=model,
+        bounce=bounce,
+        exposure_fraction=exposure_fraction,
+        frame_times=torch.tensor([float(f.index - first) for f in frames], device=device),
+        taus=exposure_times(render_config.time_steps, device),
+        renderers=[MeshRenderer(f.crop.camera, render_config) for f in frames],
+        fit_config=fit_config,
+        config=config,
+    )
+
+
+def window_candidate(window: WindowStart, prototype: str | None, spin: SpinScore | None = None) -> Optimisation:
+    """One candidate's optimisation on a copy of the window's path.
+
+    Args:
+        prototype: None for the best seed's mesh and texture, else a fresh (grey) prototype.
+        spin: a searched spin and its texture, else the best seed's spin.
+    """
+    fit_config, config, seed = window.fit_config, window.config, window.best_seed
+    learnt = (fit_config.deform, fit_config.learn_texture)
+    window.oriented(seed.state.motion.omega / window.exposure_fraction if spin is None else spin.spin)
+    path = copy.deepcopy(window.path)
+    if prototype is None:
+        _, topology = load_prototype(seed.prototype)
+        shape = ShapeParams(seed.state.vertices, topology, seed.state.texture.shape[-1], *learnt)
+        texture = seed.state.texture
+    else:
+        proto, topology = load_prototype(prototype)
+        shape = ShapeParams(proto, topology, fit_config.texture_size, *learnt)
+        texture = None
+    if spin is not None:
+        texture = upsample_texture(spin.texture.cpu(), shape.texture_logits.shape[-1])
+    if texture is not None:
+        seed_texture(shape, texture)
+    shape.topology = topology.to(window.device)
+    shape, path = shape.to(window.device), path.to(window.device)
+    rotation = (path.quat0, path.spin_raw)
+    groups = [
+        {"params": [p for p in shape.parameters() if p.requires_grad]},
+        {"params": [path.anchors_raw], "lr": config.lr_path},
+        {"params": [p for p in rotation if p.requires_grad], "lr": fit_config.lr_rotation},
+        {"params": [path.exposure_raw] if path.exposure_raw.requires_grad else [], "lr": config.lr_exposure},
+    ]
+    optimiser = torch.optim.Adam([g for g in groups if g["params"]], lr=fit_config.lr, fused=True)
+    return Optimisation(WindowObjective(window, shape, path), optimiser, config.iterations)
+
+
+def searched_spin(window: WindowStart, render_config: RenderConfig) -> SpinScore:
+    """The spin (and texture) that best explains the window's frames on the seeds' path, searched
+    on the best seed's prototype as it was before its single-frame fit deformed it to explain one
+    frame's blur: searched on the deformed mesh the spin came out 40 degrees off, on the
+    prototype 4 (tests/fitting/test_window.py's clip)."""
+    config = window.config
+    vertices, topology = (x.to(window.device) for x in load_prototype(window.best_seed.prototype))
+    crops = [f.crop for f in window.frames]
+    args = (crops, vertices, topology, config.spin_texture, config.spin_smoothness, render_config)
+    seed_spins = torch.stack([s.state.motion.omega / window.exposure_fraction for s in window.seeds]).float()
+    grid = torch.cat((spin_grid(config.spin_magnitudes, config.spin_axes), seed_spins)).to(window.device)
+    return search_spin(grid, lambda s: score_spin(s, window.poses, *args), config.spin_refine)[0]
 
 
 def fit_window(
@@ -380,115 +320,38 @@ def fit_window(
             (and of every candidate during the trials).
 
     Raises:
-        RuntimeError: when no finite path fits the seeds, or every candidate's loss is
+        DivergenceError: when no finite path fits the seeds, or every candidate's loss is
             non-finite from its first step.
     """
-    device = frames[0].crop.image.device
-    first = frames[0].index
-    start = time.perf_counter()
-    end = frames[-1].index - first + 1.0
-    if config.learn_exposure:
-        # The seeds' streaks and spacing measure e better than the configured start, which may be
-        # far off (a short shutter taken for an open one puts each streak's end at the next
-        # frame's start, and the path then has to jump).
-        exposure_fraction = measured_exposure(seeds, camera) or exposure_fraction
-    model, bounce = choose_motion(seeds, first, end, camera, exposure_fraction, config)
-    ref_px = statistics.median(_apparent_px(s.state.motion, camera) for s in seeds)
-    best_seed = shape_from or min(seeds, key=lambda s: s.image_loss)
-    spin = best_seed.state.motion.omega / exposure_fraction
-    renderers = [MeshRenderer(f.crop.camera, render_config) for f in frames]
-    taus = exposure_times(render_config.time_steps, device)
-    learnt = (fit_config.deform, fit_config.learn_texture)
-
-    path = _path_params(model, bounce, end, camera, ref_px, exposure_fraction, config, fit_config.max_rotation_deg)
-    _fit_path(path, seeds, first, exposure_fraction, config.path_steps)
-    if not bool(torch.isfinite(path.anchors_raw).all()):
-        raise RuntimeError("no finite path through the seeds' streaks")
-    frame_times = torch.tensor([float(f.index - first) for f in frames], device=device)
-    seed_index = float(best_seed.index - first)
-
-    def orient(spin: torch.Tensor) -> None:
-        # The best seed keeps its orientation at its frame's start whatever the spin.
-        path.load_rotation(axis_angle_to_matrix(-seed_index * spin) @ best_seed.state.motion.rot0, spin)
-
-    def poses(spin: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        orient(spin)
-        with torch.no_grad():
-            return path(frame_times, taus)
-
-    def candidate(name: str | None, start: SpinScore | None = None) -> _WindowFit:
-        # name None: the best seed's mesh, else a fresh prototype; start: a searched spin and
-        # its texture, else the seed's spin (and texture, or grey for a fresh prototype).
-        torch.manual_seed(fit_config.seed)
-        orient(spin if start is None else start.spin)
-        params = copy.deepcopy(path)
-        if name is None:
-            proto, topology = load_prototype(best_seed.prototype)
-            shape = ShapeParams(best_seed.state.vertices, topology, best_seed.state.texture.shape[-1], *learnt)
-            texture = best_seed.state.texture
-        else:
-            proto, topology = load_prototype(name)
-            shape = ShapeParams(proto, topology, fit_config.texture_size, *learnt)
-            texture = None
-        if start is not None:
-            texture = upsample_texture(start.texture.cpu(), shape.texture_logits.shape[-1])
-        if texture is not None:
-            with torch.no_grad():
-                shape.texture_logits.copy_(torch.logit(texture.clamp(1e-4, 1 - 1e-4)))
-        shape.topology = topology.to(device)
-        return _WindowFit(frames, renderers, shape.to(device), params.to(device), fit_config, config, taus)
-
-    def search() -> SpinScore:
-        # On the seed's prototype as it was before its single-frame fit deformed it to explain
-        # one frame's blur: searched on the deformed mesh the spin came out 40 degrees off, on
-        # the prototype 4 (tests/test_joint.py's clip).
-        vertices, topology = (x.to(device) for x in load_prototype(best_seed.prototype))
-        crops = [f.crop for f in frames]
-        args = (crops, vertices, topology, config.spin_texture, config.spin_smoothness, render_config)
-        seed_spins = torch.stack([s.state.motion.omega / exposure_fraction for s in seeds]).float()
-        grid = torch.cat((spin_grid(config.spin_magnitudes, config.spin_axes), seed_spins)).to(device)
-        return search_spin(grid, lambda s: score_spin(s, poses, *args), config.spin_refine)[0]
-
+    started = time.perf_counter()
+    window = start_window(frames, seeds, camera, fit_config, config, render_config, exposure_fraction, shape_from)
     searching = shape_from is None and bool(config.spin_magnitudes) and fit_config.max_rotation_deg > 0
-    with deterministic(device):
-        seed_key = f"seed:{best_seed.prototype}"
-        fits = {seed_key: candidate(None)} | {p: candidate(p) for p in prototypes}
-        trials: dict[str, float] = {}
-        trial_steps = max(1, round(config.trial_fraction * config.iterations))
-        if len(fits) > 1 or searching:
-            for key, fit in fits.items():
-                fit.run(trial_steps, on_step)
-                trials[key] = fit.best_image_loss
+    seed_key = f"seed:{window.best_seed.prototype}"
+    with seeded(fit_config.seed), deterministic(window.device):
+        fits = {seed_key: window_candidate(window, None)} | {p: window_candidate(window, p) for p in prototypes}
         if searching:
-            # On the seeds' path, not on the one of the seed's trial: a trial from a wrong spin
-            # bends the path to fit it, and the search then finds a wrong spin that explains
-            # the frames better than the true one on the seeds' path (tests/test_joint.py's
-            # clip: 40 degrees off against 4).
-            key = f"spin:{best_seed.prototype}"
-            fits[key] = candidate(best_seed.prototype, search())
-            fits[key].run(trial_steps, on_step)
-            trials[key] = fits[key].best_image_loss
-        key = min(fits, key=lambda k: fits[k].best_image_loss)
-        fit = fits[key]
-        name = key.split(":")[-1]
-        fit.run(config.iterations - fit.step, on_step)
-    if fit.best is None:
-        raise RuntimeError("the joint fit diverged from its first step (non-finite loss)")
-    _, shape_state, path_state, per_frame, loss = fit.best
-    fit.shape.load_state_dict(shape_state)
-    fit.params.load_state_dict(path_state)
+            # On the seeds' path, not on the one of a trial: a trial from a wrong spin bends the
+            # path to fit it, and the search then finds a wrong spin that explains the frames
+            # better than the true one on the seeds' path (40 degrees off against 4).
+            spin = searched_spin(window, render_config)
+            fits[f"spin:{window.best_seed.prototype}"] = window_candidate(window, window.best_seed.prototype, spin)
+        trial = max(1, round(config.trial_fraction * config.iterations)) if len(fits) > 1 else None
+        key, trials = race(fits, trial, on_step)
+    fit = fits[key]
+    best = fit.restore()
+    shape, path = fit.objective.modules
     with torch.no_grad():
-        vertices, texture = fit.shape.vertices().cpu(), fit.shape.texture().cpu()
+        vertices, texture = shape.vertices().cpu(), shape.texture().cpu()
     return JointResult(
-        prototype=name,
+        prototype=key.split(":")[-1],
         vertices=vertices,
-        topology=fit.shape.topology.to("cpu"),
+        topology=shape.topology.to("cpu"),
         texture=texture,
-        trajectory=fit.params.trajectory(first, model),
-        losses=per_frame,
-        loss=loss,
+        trajectory=path.trajectory(window.first, window.model),
+        losses=best.kept,
+        loss=best.record["total"],
         curve=fit.curve,
-        seconds=time.perf_counter() - start,
-        bounce=bounce,
+        seconds=time.perf_counter() - started,
+        bounce=window.bounce,
         trials=trials,
     )

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from sfb_video.errors import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import (
     axis_angle_to_matrix,
@@ -122,7 +123,7 @@ def streak_from_mask(mask: torch.Tensor) -> Streak:
     """
     ys, xs = torch.nonzero(mask > 0.5, as_tuple=True)
     if xs.numel() < 2:
-        raise ValueError("the mask is empty: no streak to start from")
+        raise NoObjectError(f"the object's mask has {xs.numel()} pixel(s): too few for a streak to start from")
     pts = torch.stack((xs, ys), -1).to(torch.float64)
     centre = pts.mean(0)
     _, evecs = torch.linalg.eigh(torch.cov(pts.T))

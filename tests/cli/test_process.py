@@ -7,8 +7,8 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
-import sfb_video.stages.track
 
+import sfb_video.stages.track
 from sfb_video.cli import main
 from sfb_video.config import load_config
 from sfb_video.demo import demo_clip, demo_config

@@ -15,12 +15,12 @@ import torch
 
 from sfb_video.config import load_config
 from sfb_video.crop import make_crop
-from sfb_video.errors import SfbError
+from sfb_video.errors import NoObjectError, SfbError
 from sfb_video.evaluation.synthetic import FrameScore, crop_masks, fit_synthetic_frame, score_fit, synthetic_crop
-from sfb_video.fitting.frame import NoObjectError, WarmStart, fit_frame, planned_steps
+from sfb_video.fitting.frame import WarmStart, fit_frame, planned_steps
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.rotation import axis_angle_to_matrix
-from sfb_video.model.motion import Motion
+from sfb_video.model.motion import Motion, streak_from_mask
 from sfb_video.synth import ClipSpec, generate_clip
 
 FRAMES = (("ball", 0), ("box", 0), ("ball", 2), ("box", 2))
@@ -225,3 +225,33 @@ def test_subframe_masks_set_the_time_direction_of_a_cold_fit(reverse: bool) -> N
     masks = crop_masks(clip, 0, crop)
     fit = fit_frame(crop, config.fit, config.render, masks=masks.flip(0) if reverse else masks)
     assert score_fit(fit, clip, 0, config).flipped == reverse
+
+
+def test_weights_that_leave_nothing_to_optimise_stop_the_fit_without_an_error() -> None:
+    # L_D alone, faded out after the first step: the total no longer depends on a parameter.
+    overrides = ["fit.iterations=6", "fit.difference_fade=0.1", "fit.w_image=0", "fit.w_texture=0"]
+    config = load_config("fast", [*overrides, "fit.w_laplacian=0", "fit.w_silhouette=0"])
+    fit = fit_frame(synthetic_crop(_clip("ball", 0), 0, config), config.fit, config.render)
+    assert fit.iterations == 2
+    assert fit.losses["total"] == pytest.approx(config.fit.w_difference * fit.losses["difference"])
+
+
+def test_a_mask_of_one_pixel_is_no_object_not_a_bare_value_error() -> None:
+    image, background, camera = _images()
+    image[:, 30, 40] = 1 - background[:, 30, 40]
+    config = load_config("fast")
+    crop = make_crop(image, background, (38, 28, 5, 5), camera, config.crop)
+    with pytest.raises(NoObjectError, match="fewer than 2 pixels"):
+        fit_frame(crop, config.fit, config.render)
+    with pytest.raises(NoObjectError, match="1 pixel"):
+        streak_from_mask(torch.zeros(8, 8).index_put_((torch.tensor([3]), torch.tensor([4])), torch.tensor(1.0)))
+
+
+def test_a_fit_leaves_the_callers_random_state_as_it_was() -> None:
+    config = load_config("fast", ["fit.iterations=2"])
+    crop = synthetic_crop(_clip("ball", 0), 0, config)
+    torch.manual_seed(7)
+    expected = torch.rand(4)
+    torch.manual_seed(7)
+    fit_frame(crop, config.fit, config.render)
+    assert torch.equal(torch.rand(4), expected)

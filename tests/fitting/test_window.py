@@ -14,7 +14,8 @@ from sfb_video.config import load_config
 from sfb_video.crop import make_crop
 from sfb_video.evaluation.synthetic import score_state
 from sfb_video.fitting.frame import fit_frame
-from sfb_video.fitting.window import JointResult, Seed, WindowFrame, fit_window, measured_exposure
+from sfb_video.fitting.path import Seed, measured_exposure
+from sfb_video.fitting.window import JointResult, WindowFrame, fit_window
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState

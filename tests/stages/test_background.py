@@ -6,11 +6,11 @@ from pathlib import Path
 
 import pytest
 import torch
-from sfb_video.stages.background import fixed_background, running_median, with_backgrounds
-from sfb_video.stages.types import Frame
 
 from sfb_video.config import VideoConfig
 from sfb_video.errors import SfbError
+from sfb_video.stages.background import fixed_background, running_median, with_backgrounds
+from sfb_video.stages.types import Frame
 from sfb_video.video import VideoWriter
 
 

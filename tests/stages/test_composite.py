@@ -8,13 +8,13 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from sfb_video.stages import composite
-from sfb_video.stages.export import render_frame
-from sfb_video.stages.types import FrameWithBackground
 
 from benchmarks.composite import partial_fit
 from sfb_video.config import load_config
 from sfb_video.results import FrameResult
+from sfb_video.stages import composite
+from sfb_video.stages.export import render_frame
+from sfb_video.stages.types import FrameWithBackground
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip
 
 CONFIG = load_config("fast")

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import torch
-from sfb_video.stages.detect import Neighbour, blob_colour, choose_blob, detect, difference_mask
-from sfb_video.stages.types import Prediction
 
 from sfb_video.config import load_config
+from sfb_video.stages.detect import Neighbour, blob_colour, choose_blob, detect, difference_mask
+from sfb_video.stages.types import Prediction
 
 CONFIG = load_config("default").detect
 

@@ -7,10 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from sfb_video.stages.fit import fit_detection
-from sfb_video.stages.masks import MaskSource, choose_masks, mask_centroids, orient_masks
-from sfb_video.stages.track import join
-from sfb_video.stages.types import Detection, FrameWithBackground
 
 from sfb_video import defmo
 from sfb_video.config import CropConfig, load_config
@@ -19,6 +15,10 @@ from sfb_video.demo import demo_clip, demo_config
 from sfb_video.errors import SfbError
 from sfb_video.evaluation.synthetic import crop_masks
 from sfb_video.results import FrameResult
+from sfb_video.stages.fit import fit_detection
+from sfb_video.stages.masks import MaskSource, choose_masks, mask_centroids, orient_masks
+from sfb_video.stages.track import join
+from sfb_video.stages.types import Detection, FrameWithBackground
 from sfb_video.synth import SyntheticClip
 
 CPU = torch.device("cpu")

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import torch
-from sfb_video.stages.track import with_neighbours
-from sfb_video.stages.types import FrameWithBackground
 
 from sfb_video.config import load_config
+from sfb_video.stages.track import with_neighbours
+from sfb_video.stages.types import FrameWithBackground
 
 
 def _frames(count: int) -> list[FrameWithBackground]:

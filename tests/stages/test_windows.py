@@ -3,16 +3,21 @@ motion model from the single-frame fits."""
 
 from __future__ import annotations
 
-import torch
-from sfb_video.stages.types import FrameStatus
-from sfb_video.stages.windows import frame_windows, track_windows
+from pathlib import Path
 
-from sfb_video.config import JointConfig
-from sfb_video.fitting.window import Seed, choose_motion
+import pytest
+import torch
+
+from sfb_video.config import JointConfig, load_config
+from sfb_video.errors import DivergenceError
+from sfb_video.fitting.path import Seed, choose_motion
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
+from sfb_video.stages import windows
+from sfb_video.stages.types import FrameStatus, FrameWithBackground
+from sfb_video.stages.windows import frame_windows, track_windows
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
 E = 0.6
@@ -84,3 +89,28 @@ def test_a_configured_model_is_used_as_is() -> None:
 
     config = JointConfig(motion="constant_velocity")
     assert choose_motion(_seeds(_ends(arc, 4)), 0, 4.0, CAMERA, E, config) == ("constant_velocity", None)
+
+
+def test_only_a_divergence_skips_a_window_and_any_other_error_is_raised(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = load_config("fast")
+    statuses = [FrameStatus(i, "fitted", (0, 0, 4, 4), track=0) for i in range(3)]
+    frames = [FrameWithBackground(i, torch.zeros(3, 8, 8), torch.zeros(3, 8, 8)) for i in range(3)]
+    camera = PinholeCamera.from_fov(8, 8, 45.0)
+    monkeypatch.setattr(windows, "load_result", lambda path: None)
+    monkeypatch.setattr(windows, "window_frame", lambda *args: None)
+
+    def fails_with(error: Exception) -> None:
+        def fit(*args: object) -> None:
+            raise error
+
+        monkeypatch.setattr(windows, "fit_track_window", fit)
+
+    fails_with(DivergenceError("the joint fit diverged"))
+    assert windows.fit_windows(iter(frames), tmp_path, statuses, camera, config, torch.device("cpu")) == []
+    assert "frames 0-2 skipped: the joint fit diverged" in capsys.readouterr().err
+    for error in (RuntimeError("CUDA out of memory"), RuntimeError("Expected all tensors to be on the same device")):
+        fails_with(error)
+        with pytest.raises(RuntimeError, match=str(error)):
+            windows.fit_windows(iter(frames), tmp_path, statuses, camera, config, torch.device("cpu"))
