@@ -22,10 +22,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from sfb_video.batch import DONE, BatchPlan, ClipOptions, plan_jobs, run_batch
+from sfb_video.batch import DONE, BatchPlan, plan_jobs, run_batch
 from sfb_video.cluster import Resources, connected
 from sfb_video.config import Config, load_config
 from sfb_video.demo import demo_clip, demo_config, write_clip_video
+from sfb_video.stages.process import ClipOptions
 
 
 def write_clips(folder: Path, count: int, frames: int, config: Config, small: bool = False) -> list[Path]:
@@ -46,8 +47,8 @@ def timed_batch(clips: list[Path], out: Path, config: Config, use_ray: bool, wor
     """Seconds to run the clips into ``out`` (every clip must finish), and clips per minute
     once each worker has finished its first clip (what a long batch runs at: Ray's start, a
     worker's start and its first clip's imports are behind it)."""
-    options = ClipOptions(config=config, device="cpu", masks="diff")
-    plan = BatchPlan(plan_jobs(clips, out), options, out, Resources(1), 0, None, use_ray, workers)
+    jobs = plan_jobs(clips, out)
+    plan = BatchPlan(jobs, ClipOptions(masks="diff"), config, out, "cpu", Resources(1), 0, None, use_ray, workers)
     started = time.perf_counter()
     ends: list[float] = []
     rows = run_batch(plan, on_row=lambda _, __: ends.append(time.perf_counter()))

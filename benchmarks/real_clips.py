@@ -81,7 +81,7 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             out = (args.out or Path(tmp)) / clip.stem
             start = time.perf_counter()
-            options = ProcessOptions(video=clip, out=out, frames=range(args.frames), masks="diff")
+            options = ProcessOptions(video=clip, out=out, frames=f"0:{args.frames}", masks="diff")
             summary = process_clip(options, config, torch.device("cpu"), quiet=True)
             seconds = time.perf_counter() - start
             _, statuses = read_run(out)

@@ -24,7 +24,10 @@ from typing import Any
 from sfb_video.atomic import atomic_write_bytes, write_json
 from sfb_video.cluster import Outcome, Resources, run_here, run_on_ray
 from sfb_video.config import Config
+from sfb_video.devices import resolve_device
 from sfb_video.errors import OutputError, SfbError, printable
+from sfb_video.stages.process import ClipOptions, finished_summary, process_clip
+from sfb_video.stages.read import check_video
 
 VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".flv"})
 """A folder's files with these suffixes are its clips."""
@@ -45,22 +48,6 @@ class ClipJob:
     name: str
     video: Path
     out: Path
-
-
-@dataclass(frozen=True)
-class ClipOptions:
-    """What every clip of a batch shares: ``sfb-video process``'s options."""
-
-    config: Config
-    device: str = "auto"
-    masks: str = "auto"
-    defmo_weights: Path | None = None
-    frames: tuple[int | None, int | None] | None = None
-    frames_text: str | None = None
-    background: Path | None = None
-    focal_px: float | None = None
-    object_diameter: float | None = None
-    overwrite: bool = False
 
 
 @dataclass(frozen=True)
@@ -138,7 +125,9 @@ def plan_jobs(clips: Sequence[Path], out: Path) -> list[ClipJob]:
     return jobs
 
 
-def run_clip(job: ClipJob, options: ClipOptions, report: Callable[[str, int], None] | None = None) -> ClipRow:
+def run_clip(
+    job: ClipJob, options: ClipOptions, config: Config, device: str, report: Callable[[str, int], None] | None = None
+) -> ClipRow:
     """``sfb-video process`` on one clip into ``job.out``: resumed from its saved frames, or
     nothing at all when it finished with the same clip and config before.
 
@@ -146,28 +135,17 @@ def run_clip(job: ClipJob, options: ClipOptions, report: Callable[[str, int], No
     else raises (the batch reports it as the clip's error).
 
     Args:
+        options: what every clip of the batch is asked; device: ``auto``, ``cpu`` or ``cuda``,
+            resolved where the clip runs.
         report: called with the clip's name and the number of its frames done so far.
     """
-    from sfb_video.cli import check_video, resolve_device, resolve_frames
-    from sfb_video.stages.process import ProcessOptions, finished_summary, process_clip
-
     started = time.perf_counter()
     row = ClipRow(job.name, str(job.video), str(job.out), FAILED)
     try:
         check_video(job.video)
-        device = resolve_device(options.device)
-        process = ProcessOptions(
-            video=job.video,
-            out=job.out,
-            frames=resolve_frames(options.frames, job.video, options.frames_text or ""),
-            background=options.background,
-            focal_px=options.focal_px,
-            object_diameter=options.object_diameter,
-            overwrite=options.overwrite,
-            masks=options.masks,
-            defmo_weights=options.defmo_weights,
-        )
-        summary = finished_summary(process, options.config, device)
+        where = resolve_device(device)
+        process = options.for_clip(job.video, job.out)
+        summary = finished_summary(process, config, where)
         note = "finished before: nothing to do"
         if summary is None:
             done = 0
@@ -178,7 +156,7 @@ def run_clip(job: ClipJob, options: ClipOptions, report: Callable[[str, int], No
                 if report is not None:
                     report(job.name, done)
 
-            summary = process_clip(process, options.config, device, quiet=True, on_frame=on_frame)
+            summary = process_clip(process, config, where, quiet=True, on_frame=on_frame)
             note = ""
     except (SfbError, OutputError) as exc:
         return dataclasses.replace(row, seconds=time.perf_counter() - started, error=printable(str(exc)))
@@ -229,11 +207,13 @@ def table(rows: Sequence[ClipRow]) -> str:
 
 @dataclass(frozen=True)
 class BatchPlan:
-    """A whole batch: its clips' jobs, their shared options, and where and how they run."""
+    """A whole batch: its clips' jobs, what every clip is run with, and where and how they run."""
 
     jobs: list[ClipJob]
     options: ClipOptions
+    config: Config
     out: Path
+    device: str = "auto"
     resources: Resources = field(default_factory=Resources)
     max_retries: int = 3
     ray_address: str | None = None
@@ -289,7 +269,7 @@ def run_batch(
     if not plan.use_ray:
         check_writable(plan.out)
         write_report(plan.out, rows, record, finished=not rows)
-        jobs = [(job, plan.options, frame_report) for job in plan.jobs]
+        jobs = [(job, plan.options, plan.config, plan.device, frame_report) for job in plan.jobs]
         run_here(run_clip, jobs, plan.resources, done)
         return rows
     from sfb_video.cluster import connected
@@ -306,7 +286,7 @@ def run_batch(
             raise SfbError(f"{exc.cause if exc.cause is not None else exc} (checked from a Ray worker)") from None
         write_report(plan.out, rows, record, finished=not rows)
         reporter = _FileReport(progress)
-        jobs = [(job, plan.options, reporter) for job in plan.jobs]
+        jobs = [(job, plan.options, plan.config, plan.device, reporter) for job in plan.jobs]
 
         def poll() -> None:
             for i, job in enumerate(plan.jobs):

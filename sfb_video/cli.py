@@ -21,13 +21,16 @@ import torch
 
 from sfb_video import __version__
 from sfb_video.config import load_config, save_config
+from sfb_video.devices import resolve_device
 from sfb_video.errors import OutputError, SfbError, printable
 from sfb_video.interrupts import sigint_outside_kernels
 from sfb_video.run_folder import CONFIG, open_export, open_run
+from sfb_video.stages.read import parse_frames
 
 if TYPE_CHECKING:
     from sfb_video.config import Config
     from sfb_video.stages.masks import MaskSource
+    from sfb_video.stages.process import ClipOptions
 
 BAD_INPUT = 2
 """Exit status of bad input, options or config (one line on stderr)."""
@@ -40,24 +43,66 @@ CLIPS_FAILED = 5
 INTERRUPTED = 130
 
 
-def resolve_device(name: str) -> torch.device:
-    """``auto`` picks CUDA when present, else the CPU; an unavailable device is an error."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise SfbError(f"device {name!r} requested but CUDA is not available; use --device cpu")
-    try:
-        return torch.device(name)
-    except RuntimeError:
-        raise SfbError(f"unknown device {name!r}; use auto, cpu or cuda") from None
-
-
 class Parser(argparse.ArgumentParser):
     """argparse with one-line errors: ``sfb-video process: error: argument --tsr: ... (see --help)``."""
 
     def error(self, message: str) -> typing.NoReturn:
         print(f"{self.prog}: error: {message} (see {self.prog} --help)", file=sys.stderr)
         sys.exit(BAD_INPUT)
+
+
+def at_least(low: float, kind: type = int) -> typing.Callable[[str], float]:
+    """An argparse type: a number of ``kind`` no smaller than ``low`` (one check, every flag)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid {kind.__name__} value: {text!r}") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be at least {low}, got {text}")
+        return value
+
+    return parse
+
+
+def frame_selection(text: str) -> str:
+    """An argparse type: a ``--frames`` selection, checked here and resolved against the clip."""
+    try:
+        parse_frames(text)
+    except SfbError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def clip_options(args: argparse.Namespace) -> ClipOptions:
+    """The per-clip options of ``process`` and ``batch`` (:func:`clip_arguments`)."""
+    from sfb_video.stages.process import ClipOptions
+
+    return ClipOptions(
+        frames=args.frames,
+        background=None if args.background is None else Path(args.background).absolute(),
+        focal_px=args.focal_px,
+        object_diameter=args.object_diameter,
+        overwrite=args.overwrite,
+        masks=args.masks,
+        defmo_weights=_defmo_weights(args),
+    )
+
+
+def clip_arguments() -> argparse.ArgumentParser:
+    """The argparse parent of the per-clip flags, shared by ``process`` and ``batch``."""
+    clip = argparse.ArgumentParser(add_help=False)
+    clip.add_argument("--tsr", type=at_least(1), help="sub-frames per frame in tsr.mp4 (default: video.tsr, 8)")
+    clip.add_argument(
+        "--frames",
+        type=frame_selection,
+        help="only frames START:STOP (STOP excluded; negative counts from the end), e.g. 10:40, -30:",
+    )
+    clip.add_argument("--background", help="a background image instead of the running median")
+    clip.add_argument("--object-diameter", type=float, help="the object's diameter in metres, for metric output")
+    clip.add_argument("--focal-px", type=float, help="focal length in pixels (default: from camera.fov_y_deg)")
+    return clip
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -120,8 +165,6 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     config = load_config(args.config, args.set)
     device = resolve_device(args.device)
-    if args.tsr < 1:
-        raise SfbError(f"--tsr must be at least 1, got {args.tsr}")
     image, background = read_image(args.image), read_image(args.background)
     if image.shape != background.shape:
         raise SfbError(f"image {args.image} and background {args.background} differ in size")
@@ -154,49 +197,6 @@ def cmd_fit(args: argparse.Namespace) -> int:
             f"{'masks.png, ' if masks is not None else ''}fit.json"
         )
     return 0
-
-
-def parse_frames(text: str | None) -> tuple[int | None, int | None] | None:
-    """``--frames`` as (start, stop), Python-style: STOP excluded, negative counts from the end,
-    either may be left out (``10:40``, ``:5``, ``-10:``, ``7``)."""
-    if text is None:
-        return None
-    start, sep, stop = text.partition(":")
-    try:
-        first = int(start) if start.strip() else None
-        last = (int(stop) if stop.strip() else None) if sep else (None if first is None else first + 1)
-    except ValueError:
-        raise SfbError(
-            f"--frames must be START:STOP (frame indices, STOP excluded, negative from the end), got {text!r}"
-        ) from None
-    if not sep and first == -1:
-        last = None  # "-1" alone: the last frame
-    return first, last
-
-
-def resolve_frames(spec: tuple[int | None, int | None] | None, video: Path, text: str) -> range | None:
-    """The frames ``--frames`` selects in ``video`` (negative indices need the clip's length).
-
-    Raises:
-        SfbError: the range is empty, or counts from the end of a clip that records no length.
-    """
-    if spec is None:
-        return None
-    from sfb_video.video import VideoReader
-
-    start, stop = spec
-    with VideoReader(video) as reader:
-        count = reader.info.frame_count
-    if count is None and ((start or 0) < 0 or (stop is not None and stop < 0)):
-        raise SfbError(f"--frames {text}: {video} does not record its length; give indices from its start")
-    frames = (
-        range(*slice(start, stop).indices(count))
-        if count is not None
-        else range(start or 0, 2**62 if stop is None else stop)
-    )
-    if len(frames) == 0:
-        raise SfbError(f"--frames {text} selects no frames" + (f" of the {count}-frame clip" if count else ""))
-    return frames
 
 
 def _print_summary(out: Path, summary: dict) -> None:
@@ -237,31 +237,12 @@ def _process_config(args: argparse.Namespace) -> Config:
     return load_config(args.config, overrides)
 
 
-def check_video(video: Path) -> None:
-    """Raise :class:`SfbError` unless ``video`` names a file (whether it decodes is the reader's)."""
-    if video.is_dir():
-        raise SfbError(f"{video} is a folder, not a video file")
-    if not video.exists():
-        raise SfbError(f"video not found: {video}")
-
-
 def cmd_process(args: argparse.Namespace) -> int:
-    from sfb_video.stages.process import ProcessOptions, process_clip
+    from sfb_video.stages.process import process_clip
 
     config = _process_config(args)
     video = Path(args.video)
-    check_video(video)
-    options = ProcessOptions(
-        video=video,
-        out=Path(args.out or f"runs/{video.stem}"),
-        frames=resolve_frames(parse_frames(args.frames), video, args.frames),
-        background=None if args.background is None else Path(args.background),
-        focal_px=args.focal_px,
-        object_diameter=args.object_diameter,
-        overwrite=args.overwrite,
-        masks=args.masks,
-        defmo_weights=_defmo_weights(args),
-    )
+    options = clip_options(args).for_clip(video, Path(args.out or f"runs/{video.stem}"))
     summary = process_clip(options, config, resolve_device(args.device), quiet=args.quiet)
     if not args.quiet:
         _print_summary(options.out, summary)
@@ -280,12 +261,6 @@ def cmd_batch(args: argparse.Namespace) -> int:
     from sfb_video.stages.read import probe
 
     config = _process_config(args)
-    if args.cpus_per_clip is not None and args.cpus_per_clip < 1:
-        raise SfbError(f"--cpus-per-clip must be at least 1, got {args.cpus_per_clip}")
-    if args.gpus_per_clip < 0:
-        raise SfbError(f"--gpus-per-clip must be at least 0, got {args.gpus_per_clip}")
-    if args.max_retries < 0:
-        raise SfbError(f"--max-retries must be at least 0, got {args.max_retries}")
     clips, notes = batch.gather_clips(args.inputs)
     if not clips:
         raise SfbError("no clips to process: " + "; ".join(notes))
@@ -304,18 +279,9 @@ def cmd_batch(args: argparse.Namespace) -> int:
     cpus = args.cpus_per_clip or (1 if use_ray else torch.get_num_threads())
     plan = batch.BatchPlan(
         jobs=batch.plan_jobs(clips, out),
-        options=batch.ClipOptions(
-            config=config,
-            device=args.device,
-            masks=args.masks,
-            defmo_weights=None if args.defmo_weights is None else Path(args.defmo_weights).absolute(),
-            frames=parse_frames(args.frames),
-            frames_text=args.frames,
-            background=None if args.background is None else Path(args.background).absolute(),
-            focal_px=args.focal_px,
-            object_diameter=args.object_diameter,
-            overwrite=args.overwrite,
-        ),
+        options=clip_options(args),
+        config=config,
+        device=args.device,
         out=out,
         resources=Resources(cpus, args.gpus_per_clip),
         max_retries=args.max_retries,
@@ -365,10 +331,6 @@ def cmd_export(args: argparse.Namespace) -> int:
     from sfb_video.stages.novel_views import write_novel_views
     from sfb_video.stages.process import export_run
 
-    if args.tsr is not None and args.tsr < 1:
-        raise SfbError(f"--tsr must be at least 1, got {args.tsr}")
-    if args.views < 2:
-        raise SfbError(f"--views must be at least 2, got {args.views}")
     with open_export(Path(args.run)) as run:
         config = load_config(run.work / CONFIG, args.set)
         fitted = saved_frames(run.work)
@@ -411,8 +373,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     config = load_config(args.config, args.set)
     device = resolve_device(args.device)
-    if args.max_frames is not None and args.max_frames < 1:
-        raise SfbError(f"--max-frames must be at least 1, got {args.max_frames}")
     modes = MODES if args.mode == "all" else (args.mode,)
     out = Path(args.out or f"runs/eval-{args.dataset}")
     record = {
@@ -474,8 +434,6 @@ def _eval_on_ray(
     from sfb_video.cluster import Outcome, Resources, connected, run_on_ray
     from sfb_video.evaluation.jobs import plan_jobs, run_job
 
-    if args.cpus_per_task < 1:
-        raise SfbError(f"--cpus-per-task must be at least 1, got {args.cpus_per_task}")
     jobs = plan_jobs(runs, args.max_frames)
     results: list[list | None] = [None] * len(jobs)
     errors: list[str] = []
@@ -526,41 +484,37 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--image", required=True, help="the blurred frame")
     fit.add_argument("--background", required=True, help="the same view without the object")
     fit.add_argument("--box", help="object box x,y,width,height (default: the largest blob of |I - B|)")
-    fit.add_argument("--tsr", type=int, default=8, help="sub-frames to render for temporal super-resolution")
+    fit.add_argument("--tsr", type=at_least(1), default=8, help="sub-frames to render for temporal super-resolution")
     fit.add_argument("--out", help="output folder (default: runs/<image name>)")
     fit.set_defaults(func=cmd_fit)
-    process = sub.add_parser("process", parents=[common], help="recover shape and motion in every frame of a clip")
+    clip = clip_arguments()
+    process = sub.add_parser(
+        "process", parents=[common, clip], help="recover shape and motion in every frame of a clip"
+    )
     process.add_argument("video", help="the clip (any format FFmpeg reads)")
     process.add_argument("--out", help="run folder (default: runs/<clip name>)")
-    process.add_argument("--tsr", type=int, help="sub-frames per frame in tsr.mp4 (default: video.tsr, 8)")
-    process.add_argument(
-        "--frames", help="only frames START:STOP (STOP excluded; negative counts from the end), e.g. 10:40, -30:"
-    )
-    process.add_argument("--background", help="a background image instead of the running median")
-    process.add_argument("--object-diameter", type=float, help="the object's diameter in metres, for metric output")
-    process.add_argument("--focal-px", type=float, help="focal length in pixels (default: from camera.fov_y_deg)")
     process.set_defaults(func=cmd_process)
     batch = sub.add_parser(
-        "batch", parents=[common], help="process many clips, one run folder each, in parallel on Ray"
+        "batch", parents=[common, clip], help="process many clips, one run folder each, in parallel on Ray"
     )
     batch.add_argument("inputs", nargs="+", metavar="INPUT", help="clips, folders of clips, or .txt lists of clips")
     batch.add_argument("--out", default="runs", help="folder of the clips' run folders and batch.csv (default: runs)")
-    batch.add_argument("--tsr", type=int, help="sub-frames per frame in tsr.mp4 (default: video.tsr, 8)")
-    batch.add_argument("--frames", help="only frames START:STOP of every clip (as for process)")
-    batch.add_argument("--background", help="a background image instead of the running median (every clip)")
-    batch.add_argument("--object-diameter", type=float, help="the object's diameter in metres, for metric output")
-    batch.add_argument("--focal-px", type=float, help="focal length in pixels (default: from camera.fov_y_deg)")
     batch.add_argument(
         "--ray-address",
         help="join a running Ray cluster (auto: the one `ray start` runs on this machine; HOST:PORT); "
         "default: a local Ray sized to this machine",
     )
     batch.add_argument(
-        "--cpus-per-clip", type=int, help="CPUs (torch threads) per clip (default: 1 on Ray, all without it)"
+        "--cpus-per-clip", type=at_least(1), help="CPUs (torch threads) per clip (default: 1 on Ray, all without it)"
     )
-    batch.add_argument("--gpus-per-clip", type=float, default=0.0, help="GPUs per clip (e.g. 0.5: two clips a GPU)")
     batch.add_argument(
-        "--max-retries", type=int, default=3, help="restarts of a clip whose worker died (killed, out of memory)"
+        "--gpus-per-clip", type=at_least(0, float), default=0.0, help="GPUs per clip (e.g. 0.5: two clips a GPU)"
+    )
+    batch.add_argument(
+        "--max-retries",
+        type=at_least(0),
+        default=3,
+        help="restarts of a clip whose worker died (killed, out of memory)",
     )
     batch.set_defaults(func=cmd_batch)
     base = argparse.ArgumentParser(add_help=False)
@@ -568,11 +522,11 @@ def build_parser() -> argparse.ArgumentParser:
     base.add_argument("--quiet", action="store_true", help="print nothing on success")
     export = sub.add_parser("export", parents=[base], help="re-render the outputs of a run without fitting again")
     export.add_argument("run", help="a run folder written by sfb-video process")
-    export.add_argument("--tsr", type=int, help="sub-frames per frame in tsr.mp4")
+    export.add_argument("--tsr", type=at_least(1), help="sub-frames per frame in tsr.mp4")
     export.add_argument(
         "--novel-views", nargs="*", type=int, metavar="FRAME", help="turntables of these frames' meshes (default: best)"
     )
-    export.add_argument("--views", type=int, default=36, help="turntable views per frame")
+    export.add_argument("--views", type=at_least(2), default=36, help="turntable views per frame")
     export.set_defaults(func=cmd_export)
     evaluate = sub.add_parser("eval", parents=[common], help="score the method on a benchmark dataset")
     evaluate.add_argument(
@@ -589,14 +543,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="joint also scores the video mode (its seeds are the video mode's fits)",
     )
     evaluate.add_argument("--sequence", action="append", help="only this sequence (repeatable)")
-    evaluate.add_argument("--max-frames", type=int, help="only the first N frames of each sequence")
+    evaluate.add_argument("--max-frames", type=at_least(1), help="only the first N frames of each sequence")
     evaluate.add_argument(
         "--ray-address",
         help="fit the sequences (video, joint) or frames (per-frame) on Ray: local, auto or HOST:PORT",
     )
-    evaluate.add_argument("--cpus-per-task", type=int, default=1, help="CPUs (torch threads) per job on Ray")
-    evaluate.add_argument("--gpus-per-task", type=float, default=0.0, help="GPUs per job on Ray")
-    evaluate.add_argument("--max-retries", type=int, default=3, help="restarts of a job whose worker died")
+    evaluate.add_argument("--cpus-per-task", type=at_least(1), default=1, help="CPUs (torch threads) per job on Ray")
+    evaluate.add_argument("--gpus-per-task", type=at_least(0, float), default=0.0, help="GPUs per job on Ray")
+    evaluate.add_argument("--max-retries", type=at_least(0), default=3, help="restarts of a job whose worker died")
     evaluate.set_defaults(func=cmd_eval)
     replay = sub.add_parser("replay", help="open a run's recording in the rerun viewer")
     replay.add_argument("run", help="a run folder or a .rrd file")

@@ -251,6 +251,21 @@ def blob_colour(image: np.ndarray, background: np.ndarray, where: np.ndarray) ->
 
 
 @timed("detect")
+def gate_distance(
+    prediction: Prediction, centre: tuple[float, float], size: tuple[int, int], area: float, config: DetectConfig
+) -> float | None:
+    """Pixels from a track's ``prediction`` to a blob's ``centre`` when the blob may be the tracked
+    object, else None: it is not smaller than the track's object allows (``min_fill`` of its
+    disc) and lies within ``gate`` diameters of the prediction, plus half the blob's longer side
+    of its ``size`` (w, h). The one rule by which a blob continues a track."""
+    if area < max(config.min_area_px, config.min_fill * math.pi / 4 * prediction.diameter**2):
+        return None
+    distance = math.hypot(centre[0] - prediction.centre[0], centre[1] - prediction.centre[1])
+    if distance > config.gate * max(prediction.diameter, 1.0) + max(size) / 2:
+        return None
+    return distance
+
+
 def choose_blob(
     index: int,
     moving: torch.Tensor,
@@ -271,20 +286,19 @@ def choose_blob(
     def colour(label: int) -> tuple[float, float, float] | None:
         return None if pixels is None else blob_colour(*pixels, labels == label)
 
-    min_area = config.min_area_px
-    if prediction is not None:
-        min_area = max(min_area, config.min_fill * math.pi / 4 * prediction.diameter**2)
     best: tuple[float, int] | None = None
     candidates: list[int] = []
     for label in range(1, count):
         area = float(stats[label, cv2.CC_STAT_AREA])
-        if area < min_area:
+        if prediction is None and area < config.min_area_px:
             continue
         score = area
         if prediction is not None:
-            w, h = stats[label, 2:4]
-            distance = float(np.hypot(*(centroids[label] - np.asarray(prediction.centre))))
-            if distance > config.gate * max(prediction.diameter, 1.0) + max(w, h) / 2:
+            w, h = (int(v) for v in stats[label, 2:4])
+            distance = gate_distance(
+                prediction, (float(centroids[label][0]), float(centroids[label][1])), (w, h), area, config
+            )
+            if distance is None:
                 continue
             # Nearness alone would pick a speck or a shred of a slow mover next to a poor
             # prediction over the real streak a little further away; size counts too.

@@ -14,7 +14,7 @@ import dataclasses
 import hashlib
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import torch
@@ -41,7 +41,7 @@ from sfb_video.run_folder import (
 from sfb_video.stages.background import with_backgrounds
 from sfb_video.stages.export import Exported, export_frames, write_csv
 from sfb_video.stages.masks import MaskSource, choose_masks, print_line
-from sfb_video.stages.read import probe
+from sfb_video.stages.read import check_video, probe, select_frames
 from sfb_video.stages.track import track_and_fit
 from sfb_video.stages.types import FrameStatus
 from sfb_video.stages.windows import fit_windows, track_windows
@@ -50,31 +50,42 @@ from sfb_video.video import VideoInfo
 
 
 @dataclass(frozen=True)
-class ProcessOptions:
-    """What a user asks of one ``sfb-video process`` run.
+class ClipOptions:
+    """What a user asks of a clip's run, the same for one clip (``process``) and for every clip
+    of a ``batch``: declared here once.
 
     Attributes:
-        video: the clip.
-        out: the run folder.
-        frames: only these frame indices (all when None).
+        frames: only the frames this selection picks (``START:STOP``, :func:`select_frames`;
+            all when None).
         background: a background image instead of the estimated one.
         focal_px: the camera's focal length in pixels (else from ``camera.fov_y_deg``).
         object_diameter: the object's real diameter in metres, for metric positions and speeds.
-        overwrite: replace a finished run in ``out``.
+        overwrite: replace a finished run in the run folder.
         masks: ``auto``, ``defmo`` or ``diff``: which sub-frame masks the fits use
             (:func:`sfb_video.stages.masks.choose_masks`).
         defmo_weights: a folder with DeFMO's weights (default: torch hub's cache).
     """
 
-    video: Path
-    out: Path
-    frames: range | None = None
+    frames: str | None = None
     background: Path | None = None
     focal_px: float | None = None
     object_diameter: float | None = None
     overwrite: bool = False
     masks: str = "auto"
     defmo_weights: Path | None = None
+
+    def for_clip(self, video: Path, out: Path) -> ProcessOptions:
+        """These options for the run of ``video`` into the run folder ``out``."""
+        return ProcessOptions(video=video, out=out, **{f.name: getattr(self, f.name) for f in fields(ClipOptions)})
+
+
+@dataclass(frozen=True, kw_only=True)
+class ProcessOptions(ClipOptions):
+    """What a user asks of one ``sfb-video process`` run: the clip, its run folder and the
+    :class:`ClipOptions`."""
+
+    video: Path
+    out: Path
 
 
 def clip_camera(info: VideoInfo, config: Config, focal_px: float | None) -> PinholeCamera:
@@ -86,13 +97,13 @@ def clip_camera(info: VideoInfo, config: Config, focal_px: float | None) -> Pinh
     return PinholeCamera(focal_px, focal_px, (info.width - 1) / 2, (info.height - 1) / 2, info.width, info.height)
 
 
-def _run_record(options: ProcessOptions, config: Config, masks: MaskSource) -> dict:
+def _run_record(options: ProcessOptions, frames: range | None, config: Config, masks: MaskSource) -> dict:
     video = options.video.resolve()
     stat = video.stat()
     record = {
         "video": str(video),
         "video_size": stat.st_size,
-        "frames": None if options.frames is None else [options.frames.start, options.frames.stop],
+        "frames": None if frames is None else [frames.start, frames.stop],
         "background": None if options.background is None else str(options.background.resolve()),
         "focal_px": options.focal_px,
         "object_diameter": options.object_diameter,
@@ -234,7 +245,7 @@ def _joint_summary(folder: Path, windows: list[tuple[int, list[int]]]) -> dict:
     }
 
 
-def check_options(options: ProcessOptions, config: Config, info: VideoInfo) -> None:
+def check_options(options: ProcessOptions, frames: range | None, info: VideoInfo) -> None:
     """Refuse options that cannot work with this clip, before anything is written.
 
     Raises:
@@ -242,9 +253,9 @@ def check_options(options: ProcessOptions, config: Config, info: VideoInfo) -> N
     """
     if options.object_diameter is not None and options.object_diameter <= 0:
         raise SfbError(f"--object-diameter must be positive, got {options.object_diameter}")
-    if options.frames is not None and info.frame_count is not None and options.frames.start >= info.frame_count:
+    if frames is not None and info.frame_count is not None and frames.start >= info.frame_count:
         raise SfbError(
-            f"--frames {options.frames.start}:{options.frames.stop} starts after the clip's last frame "
+            f"--frames {frames.start}:{frames.stop} starts after the clip's last frame "
             f"({info.frame_count} frames, indices 0 to {info.frame_count - 1})"
         )
 
@@ -265,7 +276,8 @@ def finished_summary(options: ProcessOptions, config: Config, device: torch.devi
     if options.overwrite or marker is None or not marker.get("finished") or not options.video.is_file():
         return None
     masks = choose_masks(options.masks, options.defmo_weights, config.crop, device, log=None)
-    if marker.get("fingerprint") != _run_record(options, config, masks)["fingerprint"]:
+    frames = select_frames(options.frames, probe(options.video, config.video).frame_count)
+    if marker.get("fingerprint") != _run_record(options, frames, config, masks)["fingerprint"]:
         return None
     try:
         return json.loads((options.out / SUMMARY).read_text())
@@ -290,16 +302,18 @@ def process_clip(
         OutputError: the outputs could not be written (full disk, folder removed mid-run);
             the frames fitted so far are kept for resuming.
     """
+    check_video(options.video)
     info = probe(options.video, config.video)
-    check_options(options, config, info)
+    frames = select_frames(options.frames, info.frame_count)
+    check_options(options, frames, info)
     camera = clip_camera(info, config, options.focal_px)
     masks = choose_masks(options.masks, options.defmo_weights, config.crop, device, log=None if quiet else print_line)
-    record = _run_record(options, config, masks)
+    record = _run_record(options, frames, config, masks)
     # A run that failed before finishing any frame leaves nothing behind to resume.
     with open_run(
         options.out, "process", record, overwrite=options.overwrite, keep=lambda f: bool(saved_frames(f))
     ) as run:
-        summary = _process(run, options, config, info, camera, device, quiet, masks, on_frame)
+        summary = _process(run, options, frames, config, info, camera, device, quiet, masks, on_frame)
         run.finish()
     return summary
 
@@ -307,6 +321,7 @@ def process_clip(
 def _process(
     run: RunFolder,
     options: ProcessOptions,
+    selected: range | None,
     config: Config,
     info: VideoInfo,
     camera: PinholeCamera,
@@ -320,8 +335,8 @@ def _process(
         where = "the unfinished replacement of" if run.replacing else "the unfinished run in"
         out = printable(str(options.out))
         print(f"resuming {where} {out} ({len(saved_frames(run.work))} frames already fitted)")
-    total = _frames_to_read(options.frames, info.frame_count)
-    frames = with_backgrounds(options.video, config.video, info.frame_count, options.frames, options.background)
+    total = _frames_to_read(selected, info.frame_count)
+    frames = with_backgrounds(options.video, config.video, info.frame_count, selected, options.background)
     # disable=None: no bar when stderr is not a terminal (logs, CI).
     with tqdm(total=total, unit="frame", desc=printable(options.video.name), disable=True if quiet else None) as bar:
 
@@ -337,7 +352,7 @@ def _process(
         raise SfbError(f"{printable(str(options.video))}: no frames in the requested range")
     if config.joint.enabled:
         windows = track_windows(statuses, config.joint.window, config.joint.overlap)
-        frames = with_backgrounds(options.video, config.video, info.frame_count, options.frames, options.background)
+        frames = with_backgrounds(options.video, config.video, info.frame_count, selected, options.background)
         with tqdm(total=len(windows), unit="window", desc="joint fit", disable=True if quiet else None) as bar:
 
             def report_window(window: SavedWindow) -> None:

@@ -54,3 +54,54 @@ def _decode(path: Path, frames: range | None) -> Iterator[Frame]:
                 return
             if frames is None or index in frames:
                 yield Frame(index, image)
+
+
+def check_video(video: Path) -> None:
+    """Raise :class:`SfbError` unless ``video`` names a file (whether it decodes is the reader's)."""
+    if video.is_dir():
+        raise SfbError(f"{video} is a folder, not a video file")
+    if not video.exists():
+        raise SfbError(f"video not found: {video}")
+
+
+def parse_frames(text: str) -> tuple[int | None, int | None]:
+    """A frame selection as (start, stop), Python-style: STOP excluded, negative counts from the
+    end, either may be left out (``10:40``, ``:5``, ``-10:``, ``7``).
+
+    Raises:
+        SfbError: the text is not such a selection.
+    """
+    start, sep, stop = text.partition(":")
+    try:
+        first = int(start) if start.strip() else None
+        last = (int(stop) if stop.strip() else None) if sep else (None if first is None else first + 1)
+    except ValueError:
+        raise SfbError(
+            f"--frames must be START:STOP (frame indices, STOP excluded, negative from the end), got {text!r}"
+        ) from None
+    if not sep and first == -1:
+        last = None  # "-1" alone: the last frame
+    return first, last
+
+
+def select_frames(text: str | None, frame_count: int | None) -> range | None:
+    """The frames the selection ``text`` (:func:`parse_frames`) picks of a clip of
+    ``frame_count`` frames (None: the clip records no length); None selects them all.
+
+    Raises:
+        SfbError: the selection is empty, or counts from the end of a clip that records no length.
+    """
+    if text is None:
+        return None
+    start, stop = parse_frames(text)
+    if frame_count is None and ((start or 0) < 0 or (stop is not None and stop < 0)):
+        raise SfbError(f"--frames {text}: the clip does not record its length; give indices from its start")
+    if frame_count is not None:
+        frames = range(*slice(start, stop).indices(frame_count))
+    else:
+        frames = range(start or 0, 2**62 if stop is None else stop)
+    if len(frames) == 0:
+        raise SfbError(
+            f"--frames {text} selects no frames" + (f" of the {frame_count}-frame clip" if frame_count else "")
+        )
+    return frames

@@ -21,12 +21,21 @@ from pathlib import Path
 import torch
 
 from sfb_video.config import Config
+from sfb_video.crop import Box
 from sfb_video.errors import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion
 from sfb_video.results import FrameResult, load_result, save_result
 from sfb_video.run_folder import frame_path, saved_frames
-from sfb_video.stages.detect import Neighbour, choose_blob, difference_mask, moving_mask, still_there
+from sfb_video.stages.detect import (
+    Neighbour,
+    blob_colour,
+    choose_blob,
+    difference_mask,
+    gate_distance,
+    moving_mask,
+    still_there,
+)
 from sfb_video.stages.fit import continued, fit_detection
 from sfb_video.stages.masks import MaskSource
 from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground, Prediction
@@ -131,32 +140,24 @@ def follow(
     frame: FrameWithBackground,
     mask: torch.Tensor,
     neighbours: list[Neighbour],
-    previous: FrameResult | None,
-    may_flip: bool,
-    camera: PinholeCamera,
+    predictions: list[tuple[Prediction, FrameResult]],
     config: Config,
-    earlier: FrameResult | None = None,
-    colour: tuple[float, float, float] | None = None,
 ) -> tuple[Detection | None, FrameResult | None]:
-    """Find the object of ``frame``, near where the track's last frame predicts it.
+    """Find the object of ``frame``, near where the track predicts it (:meth:`Tracker.predictions`).
 
-    The prediction continues ``previous``'s motion (turning as it turned from ``earlier``, the
-    frame before it, where there is one); when its time direction is not known yet
-    (``may_flip``: the first frame of a track), both directions are tried and the one whose
-    prediction lands nearer its detection is kept. Blobs of the track's ``colour`` (the
-    chromaticity of its blobs so far) are preferred.
+    When the track's time direction is not known yet (its first frame), there are two
+    predictions, and the one whose prediction lands nearer its detection is kept. Blobs of the
+    track's colour are preferred.
 
     Returns:
-        the detection (None when there is no object) and ``previous`` in the direction that
-        predicted it (None when there was no track or the object was found away from it).
+        the detection (None when there is no object) and the track's last frame in the
+        direction that predicted it (None when there was no track or the object was found away
+        from it).
     """
-    options = [] if previous is None else [previous, previous.reversed()] if may_flip else [previous]
     moving = moving_mask(mask, neighbours, config.detect)
     best: tuple[float, Detection, FrameResult] | None = None
     pixels = (frame.pixels, frame.background_pixels)
-    for option in options:
-        prediction = predict(continued(option, earlier, frame.index, config.video.exposure_fraction), camera)
-        prediction = dataclasses.replace(prediction, colour=colour)
+    for prediction, option in predictions:
         found = choose_blob(frame.index, moving, prediction, config.detect, pixels)
         if found is not None:
             x, y, w, h = found.box
@@ -166,6 +167,39 @@ def follow(
     if best is not None:
         return best[1], best[2]
     return choose_blob(frame.index, moving, None, config.detect, pixels), None
+
+
+def follow_box(
+    frame: FrameWithBackground, box: Box, predictions: list[tuple[Prediction, FrameResult]], config: Config
+) -> tuple[Detection, FrameResult | None]:
+    """:func:`follow` for an object whose box is given (a benchmark hands it over): the box's
+    changed pixels are its blob, and the track goes on where that blob passes the same gate
+    (:func:`~sfb_video.stages.detect.gate_distance`) as a detected one would.
+
+    Returns:
+        the box's detection (its mask the whole box, as a fit of a handed-over box uses it) and
+        the track's last frame in the direction that predicted it, or None.
+    """
+    x, y, w, h = box
+    changed = difference_mask(frame.pixels, frame.background_pixels, config.detect)[y : y + h, x : x + w]
+    inside = torch.zeros(frame.pixels.shape[1:], dtype=torch.bool)
+    inside[y : y + h, x : x + w] = changed
+    colour = blob_colour(frame.pixels.cpu().numpy(), frame.background_pixels.cpu().numpy(), inside.numpy())
+    blob = torch.zeros_like(inside)
+    blob[y : y + h, x : x + w] = True
+    detection = Detection(frame.index, box, blob, 0, colour if bool(inside.any()) else None)
+    ys, xs = torch.nonzero(changed, as_tuple=True)
+    if xs.numel() == 0:
+        return detection, None
+    centre = (x + float(xs.double().mean()), y + float(ys.double().mean()))
+    best: tuple[float, FrameResult] | None = None
+    for prediction, option in predictions:
+        if gate_distance(prediction, centre, (w, h), float(xs.numel()), config.detect) is None:
+            continue
+        distance = math.hypot(x + w / 2 - prediction.centre[0], y + h / 2 - prediction.centre[1])
+        if best is None or distance < best[0]:
+            best = (distance, option)
+    return detection, None if best is None else best[1]
 
 
 def _others_note(detection: Detection, followed: FrameResult | None) -> str:
@@ -190,6 +224,84 @@ def _blend(
     return r, g, b
 
 
+class Tracker:
+    """Which frames form a track, frame after frame: the pipeline's one rule, which the
+    evaluation runs too.
+
+    A frame continues the track when its object is found where the track's last frame, its
+    motion continued across the gap (turning as it turned), predicts it (:func:`follow`, or
+    :func:`follow_box` for a given box); the frames then join end to start (:func:`join`),
+    which fixes the time direction of a track's first frame. A frame that is not the next one,
+    or has no object, ends the track.
+
+    Attributes:
+        previous: the track's last fitted frame (the warm start of the next); earlier: the one
+            before it; colour: the chromaticity of the track's blobs; length: its fitted frames;
+            tracks: how many tracks have started.
+    """
+
+    def __init__(self, camera: PinholeCamera, config: Config) -> None:
+        self.camera, self.config = camera, config
+        self.previous: FrameResult | None = None
+        self.earlier: FrameResult | None = None
+        self.colour: tuple[float, float, float] | None = None
+        self.length, self.tracks = 0, 0
+
+    def predictions(self, index: int) -> list[tuple[Prediction, FrameResult]]:
+        """Where frame ``index``'s object should be, with the last frame in the direction that
+        predicts it: one prediction, two while the track's direction is open, none without a
+        track that goes on into this frame."""
+        if self.previous is not None and index - self.previous.index != 1:
+            self.lose()
+        self.earlier = self.earlier if self.length >= 2 else None
+        if self.previous is None:
+            return []
+        options = [self.previous, self.previous.reversed()] if self.length == 1 else [self.previous]
+        e = self.config.video.exposure_fraction
+        return [
+            (dataclasses.replace(predict(continued(o, self.earlier, index, e), self.camera), colour=self.colour), o)
+            for o in options
+        ]
+
+    def found(self, followed: FrameResult | None) -> FrameResult | None:
+        """Take what :func:`follow` found: the track's last frame in the direction that predicted
+        the object, or None (a new track starts). Returns that frame where it was reversed (to be
+        saved so), else None."""
+        if followed is None:
+            self.lose()
+            self.earlier = None
+            return None
+        if followed is not self.previous:
+            self.previous = followed
+            return followed
+        return None
+
+    def add(
+        self, result: FrameResult, colour: tuple[float, float, float] | None
+    ) -> tuple[int, FrameResult, FrameResult | None]:
+        """Add a fitted frame to the track (a new one when none goes on).
+
+        Returns:
+            the track's number, ``result`` in the track's time direction, and the track's previous
+            frame where joining reversed it (to be saved so), else None.
+        """
+        if self.previous is None:
+            self.tracks += 1
+        reversed_previous = None
+        if self.previous is not None:
+            e = self.config.video.exposure_fraction
+            before, result = join(self.previous, result, self.camera, e, self.length == 1)
+            if before is not self.previous:
+                reversed_previous = before
+        self.colour = _blend(self.colour if self.length else None, colour)
+        self.earlier, self.previous, self.length = self.previous, result, self.length + 1
+        return self.tracks - 1, result, reversed_previous
+
+    def lose(self) -> None:
+        """End the track: the next object found starts a new one."""
+        self.previous, self.length = None, 0
+
+
 def track_and_fit(
     frames: Iterator[FrameWithBackground],
     folder: Path,
@@ -209,23 +321,12 @@ def track_and_fit(
     """
     saved = saved_frames(folder)
     statuses: list[FrameStatus] = []
-    previous: FrameResult | None = None  # the last fitted frame of the current track
-    earlier: FrameResult | None = None  # the one before it on the track
-    colour: tuple[float, float, float] | None = None  # the chromaticity of its blobs
-    track_length, tracks = 0, 0
+    tracker = Tracker(camera, config)
     for frame, mask, neighbours in with_neighbours(frames, config):
-        if previous is not None and frame.index - previous.index != 1:
-            previous, track_length = None, 0
-        earlier = earlier if track_length >= 2 else None
-        detection, followed = follow(
-            frame, mask, neighbours, previous, track_length == 1, camera, config, earlier, colour
-        )
-        if followed is None:
-            previous, track_length = None, 0  # nothing near the prediction: a new track
-            earlier = None
-        elif followed is not previous:
-            previous = followed  # the track's first frame, now known to run the other way
-            save_result(folder, previous)
+        detection, followed = follow(frame, mask, neighbours, tracker.predictions(frame.index), config)
+        reversed_first = tracker.found(followed)
+        if reversed_first is not None:
+            save_result(folder, reversed_first)  # the track's first frame, now known to run the other way
         if detection is None:
             status, result = FrameStatus(frame.index, "no_object"), None
         else:
@@ -233,25 +334,20 @@ def track_and_fit(
             result = loaded
             try:
                 if result is None:
-                    start = previous if config.video.warm_start else None
-                    result = fit_detection(frame, detection, camera, config, start, device, masks, earlier)
+                    start = tracker.previous if config.video.warm_start else None
+                    result = fit_detection(frame, detection, camera, config, start, device, masks, tracker.earlier)
                 status = FrameStatus(frame.index, "fitted", detection.box, _others_note(detection, followed))
             except NoObjectError as exc:
                 status, result = FrameStatus(frame.index, "no_object", detection.box, str(exc)), None
         if result is not None:
-            if previous is None:
-                tracks += 1
-            status = dataclasses.replace(status, track=tracks - 1)
-            if previous is not None:
-                before, result = join(previous, result, camera, config.video.exposure_fraction, track_length == 1)
-                if before is not previous:
-                    save_result(folder, before)
+            track, result, reversed_previous = tracker.add(result, detection.colour if detection is not None else None)
+            status = dataclasses.replace(status, track=track)
+            if reversed_previous is not None:
+                save_result(folder, reversed_previous)
             if result is not loaded:
                 save_result(folder, result)
-            colour = _blend(colour if track_length else None, detection.colour if detection is not None else None)
-            earlier, previous, track_length = previous, result, track_length + 1
         else:
-            previous, track_length = None, 0
+            tracker.lose()
         statuses.append(status)
         if report is not None:
             report(status, result)

@@ -48,7 +48,7 @@ def run_job(
     job: EvalJob, config: Config, device: str, masks: str, weights: Path | None, with_video: bool
 ) -> list[FrameRow]:
     """Fit and score one job's frames (on a worker: its own device and mask source)."""
-    from sfb_video.cli import resolve_device
+    from sfb_video.devices import resolve_device
     from sfb_video.stages.masks import choose_masks
 
     where = resolve_device(device)

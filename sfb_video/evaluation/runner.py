@@ -32,7 +32,7 @@ from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.results import FrameResult, SavedWindow
 from sfb_video.stages.fit import fit_detection
 from sfb_video.stages.masks import MaskSource
-from sfb_video.stages.track import join, join_gap, predict, ray_gap
+from sfb_video.stages.track import Tracker, follow_box
 from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground
 from sfb_video.stages.windows import (
     fit_track_window,
@@ -75,6 +75,9 @@ class FrameRow:
     rotation_err_deg: float = math.nan
     mesh_err: float = math.nan
     prototype: str = ""
+    track: int | None = None
+    """The frame's track (the pipeline's tracker: :class:`~sfb_video.stages.track.Tracker`), in
+    the video and joint modes."""
 
 
 def _tensor(image: np.ndarray) -> torch.Tensor:
@@ -88,8 +91,10 @@ def fit_benchmark_frame(
     previous: FrameResult | None,
     device: torch.device,
     masks: MaskSource | None = None,
+    earlier: FrameResult | None = None,
 ) -> FrameResult:
-    """Fit one frame from the benchmark's inputs, warm from ``previous`` when given.
+    """Fit one frame from the benchmark's inputs, warm from ``previous`` when given (with
+    ``earlier``, the frame before it on the track, its motion continues turning).
 
     ``masks`` gives the fit its sub-frame masks (None: the difference mask).
 
@@ -101,7 +106,8 @@ def fit_benchmark_frame(
     blob = torch.zeros(height, width, dtype=torch.bool)
     blob[y : y + h, x : x + w] = True
     inputs = FrameWithBackground(frame.index, _tensor(frame.image), _tensor(frame.background))
-    return fit_detection(inputs, Detection(frame.index, frame.box, blob), camera, config, previous, device, masks)
+    detection = Detection(frame.index, frame.box, blob)
+    return fit_detection(inputs, detection, camera, config, previous, device, masks, earlier)
 
 
 def estimate_subframes(result: FrameResult, frame: BenchmarkFrame, camera: PinholeCamera, config: Config) -> np.ndarray:
@@ -165,8 +171,7 @@ def run_sequence(
     rows: list[FrameRow] = []
     fitted: dict[int, tuple[BenchmarkFrame, FrameResult, float]] = {}  # joint mode: scored at the end
     statuses: list[FrameStatus] = []
-    previous: FrameResult | None = None
-    track_length, tracks = 0, 0
+    tracker: Tracker | None = None
     camera: PinholeCamera | None = None
     for position, frame in enumerate(sequence.frames()):
         if max_frames is not None and position >= max_frames:
@@ -175,40 +180,35 @@ def run_sequence(
             continue
         height, width = frame.image.shape[:2]
         camera = clip.camera if clip is not None else PinholeCamera.from_fov(width, height, config.camera.fov_y_deg)
+        inputs = FrameWithBackground(frame.index, _tensor(frame.image), _tensor(frame.background))
+        warm, colour = None, None
+        if mode != "per-frame":
+            # The pipeline's tracker decides the tracks, on the box the benchmark hands over.
+            tracker = tracker or Tracker(camera, config)
+            detection, followed = follow_box(inputs, frame.box, tracker.predictions(frame.index), config)
+            _reoriented(fitted, tracker.found(followed))
+            warm = tracker.previous if config.video.warm_start else None
+            colour = detection.colour
         start = time.perf_counter()
         try:
-            warm = previous if mode != "per-frame" else None
-            result = fit_benchmark_frame(frame, camera, config, warm, device, masks)
-            scored = mode != "joint" or with_video
-            estimate = estimate_subframes(result, frame, camera, config) if scored else None
+            result = fit_benchmark_frame(frame, camera, config, warm, device, masks, tracker and tracker.earlier)
         except NoObjectError:
             row = FrameRow(sequence.dataset, sequence.name, frame.index, mode, "no_object", 0.0, 0.0, 0.0, 0.0)
             statuses.append(FrameStatus(frame.index, "no_object"))
-            previous, track_length = None, 0
+            if tracker is not None:
+                tracker.lose()
         else:
             seconds = time.perf_counter() - start
-            if mode != "per-frame":
-                joined = False
-                if previous is not None:
-                    e = config.video.exposure_fraction
-                    before, result = join(previous, result, camera, e, track_length == 1)
-                    if mode == "joint":
-                        fitted[previous.index] = (fitted[previous.index][0], before, fitted[previous.index][2])
-                    # One track for the joint fit only where the fits meet (within two diameters),
-                    # at the told exposure fraction or, as the joint fit learns it, at any.
-                    gap = min(join_gap(before, result, camera, e), ray_gap(before, result, camera))
-                    joined = gap < 2 * predict(before.state.motion, camera).diameter
-                tracks += not joined
-                previous, track_length = result, track_length + 1
-            statuses.append(
-                FrameStatus(frame.index, "fitted", frame.box, track=None if mode == "per-frame" else tracks - 1)
-            )
+            track = None
+            if tracker is not None:
+                track, result, reversed_previous = tracker.add(result, colour)
+                _reoriented(fitted, reversed_previous)
+            statuses.append(FrameStatus(frame.index, "fitted", frame.box, track=track))
             if mode == "joint":
                 fitted[frame.index] = (frame, result, seconds)
-            if not scored:
+            if mode == "joint" and not with_video:
                 continue
-            assert estimate is not None
-            scores = score_frame(frame, result, estimate, camera, clip)
+            scores = score_frame(frame, result, estimate_subframes(result, frame, camera, config), camera, clip)
             row = FrameRow(
                 sequence.dataset,
                 sequence.name,
@@ -217,6 +217,7 @@ def run_sequence(
                 result.start,
                 seconds=seconds,
                 prototype=result.prototype,
+                track=track,
                 **scores,
             )
         rows.append(row)
@@ -235,6 +236,13 @@ def run_sequence(
     return sorted(video_rows, key=lambda r: r.frame) + joint_rows
 
 
+def _reoriented(fitted: dict[int, tuple[BenchmarkFrame, FrameResult, float]], result: FrameResult | None) -> None:
+    """Keep the joint mode's fit of a frame that tracking reversed (None: nothing reversed)."""
+    if result is not None and result.index in fitted:
+        frame, _, seconds = fitted[result.index]
+        fitted[result.index] = (frame, result, seconds)
+
+
 def _joint_rows(
     sequence: Sequence,
     statuses: list[FrameStatus],
@@ -249,6 +257,7 @@ def _joint_rows(
     """Fit the windows of the warm-started fits jointly and score every frame as the joint fit
     shows it; a frame's time is its single-frame fit's plus its share of each window's."""
     windows = track_windows(statuses, config.joint.window, config.joint.overlap)
+    tracks = {s.index: s.track for s in statuses}
     done: dict[int, SavedWindow] = {}
     seconds = {i: s for i, (_, _, s) in fitted.items()}
     for track, members in windows:
@@ -282,6 +291,7 @@ def _joint_rows(
             start,
             seconds=seconds[index],
             prototype=result.prototype,
+            track=tracks.get(index),
             **scores,
         )
         rows.append(row)

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sfb_video.cli import main, parse_frames, resolve_frames
+from sfb_video.cli import main
 from sfb_video.errors import SfbError
+from sfb_video.stages.read import select_frames
 from sfb_video.video import VideoWriter
 
 FAST = ["--config", "fast", "--device", "cpu", "--quiet"]
@@ -41,6 +42,11 @@ def _one_line(capsys: pytest.CaptureFixture[str], *words: str) -> str:
             ["sfb-video process: error:", "--tsr", "'abc'", "see sfb-video process --help"],
         ),
         (["process"], ["the following arguments are required: video"]),
+        (["process", "x.mp4", "--tsr", "0"], ["argument --tsr: must be at least 1, got 0"]),
+        (["fit", "--image", "a", "--background", "b", "--tsr", "0"], ["argument --tsr: must be at least 1, got 0"]),
+        (["export", "run", "--views", "1"], ["argument --views: must be at least 2, got 1"]),
+        (["batch", "x.mp4", "--gpus-per-clip", "-1"], ["argument --gpus-per-clip: must be at least 0, got -1"]),
+        (["process", "x.mp4", "--frames", "a:b"], ["argument --frames", "START:STOP"]),
         (["fit", "--image", "a.png"], ["--background"]),
         (["eval", "--dataset", "nope", "--root", "."], ["--dataset", "invalid choice"]),
         (["bogus"], ["invalid choice", "see sfb-video --help"]),
@@ -59,10 +65,8 @@ def test_parse_errors_are_one_line(capsys: pytest.CaptureFixture[str], args: lis
     [
         (["--set", "fit.iterations=-5"], ["fit.iterations must be >= 1, got -5"]),
         (["--set", "video.exposure_fraction=0"], ["video.exposure_fraction must be > 0"]),
-        (["--tsr", "0"], ["video.tsr must be >= 1, got 0"]),
         (["--frames", "100:200"], ["--frames 100:200 selects no frames of the 6-frame clip"]),
         (["--frames", "-2:3"], ["--frames -2:3 selects no frames of the 6-frame clip"]),
-        (["--frames", "a:b"], ["START:STOP"]),
     ],
 )
 def test_bad_values_are_refused_before_anything_runs(
@@ -79,9 +83,9 @@ def test_a_folder_given_as_the_clip_is_named_as_such(tmp_path: Path, capsys: pyt
     _one_line(capsys, "is a folder, not a video file")
 
 
-def test_frames_count_from_the_end_like_a_slice(six_frames: Path) -> None:
+def test_frames_count_from_the_end_like_a_slice() -> None:
     def frames(text: str) -> list[int]:
-        chosen = resolve_frames(parse_frames(text), six_frames, text)
+        chosen = select_frames(text, 6)
         assert chosen is not None
         return list(chosen)
 
@@ -93,7 +97,10 @@ def test_frames_count_from_the_end_like_a_slice(six_frames: Path) -> None:
     assert frames("3:100") == [3, 4, 5]
     with pytest.raises(SfbError, match="selects no frames"):
         frames("-2:3")
-    assert resolve_frames(None, six_frames, "") is None
+    assert select_frames(None, 6) is None
+    assert list(select_frames("2:4", None) or []) == [2, 3]
+    with pytest.raises(SfbError, match="does not record its length"):
+        select_frames("-2:", None)
 
 
 def test_a_negative_range_on_the_command_line_reaches_the_run(

@@ -142,7 +142,7 @@ def test_ctrl_c_exits_130_and_keeps_finished_frames_for_resuming(
     assert [p.name for p in (out / "frames").iterdir()] == ["frame_00000.pt"]
 
 
-@pytest.mark.parametrize(("frames", "message"), [("5:2", "selects no frames"), ("a:b", "START:STOP")])
+@pytest.mark.parametrize(("frames", "message"), [("5:2", "selects no frames"), ("-9:-8", "selects no frames")])
 def test_bad_frame_range(tmp_path: Path, capsys: pytest.CaptureFixture[str], frames: str, message: str) -> None:
     path = _write(tmp_path / "static.mp4", _static(3))
     assert main(["process", str(path), "--out", str(tmp_path / "o"), "--frames", frames, *FAST]) == 2
