@@ -320,7 +320,11 @@ class Recorder(AtomicOutput):
         """
         if self._tmp is None:
             return
-        self._flush()  # aborts on an error
+        try:
+            self._flush()  # an OutputError comes after aborting
+        except BaseException:
+            self.abort()  # Ctrl-C while waiting (does nothing after an abort)
+            raise
         tmp, self._tmp = self._tmp, None
         try:
             # disconnect() writes the footer and closes rerun's end of the pipe; the file is

@@ -213,7 +213,12 @@ class VideoWriter(AtomicOutput):
             raise SfbError(f"cannot start encoding {path} ({_reason(e)})") from e
 
     def write(self, frame: torch.Tensor | np.ndarray) -> None:
-        """Append a frame: a (3, H, W) float tensor in [0, 1] or an (H, W, 3) uint8 RGB array."""
+        """Append a frame: a (3, H, W) float tensor in [0, 1] or an (H, W, 3) uint8 RGB array.
+
+        Raises:
+            OutputError: the frame cannot be written (a full disk) or encoded; the writer is
+                aborted then (its temporary file removed).
+        """
         if self._container is None:
             raise SfbError(f"cannot write to {self.path}: the writer is closed")
         if isinstance(frame, torch.Tensor):
@@ -231,6 +236,10 @@ class VideoWriter(AtomicOutput):
             self._container.mux(self._stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), "rgb24")))
         except (av.FFmpegError, OSError) as e:
             self.abort()
+            # A failed write (a full disk: PyAV raises an OSError with its errno) is named as
+            # every output's is; anything else is the encoder's.
+            if isinstance(e, OSError) and e.errno is not None:
+                raise output_error(self.path, e) from None
             raise OutputError(f"cannot encode frame {self.frames_written} of {self.path} ({_reason(e)})") from None
         self.frames_written += 1
 
@@ -239,6 +248,8 @@ class VideoWriter(AtomicOutput):
 
         Raises:
             SfbError: if no frame was written (no file is left then) or encoding fails.
+            OutputError: the file cannot be finished (a full disk: x264 hands over the frames it
+                held, and the index is written last); no file is left then.
         """
         if self._container is None:
             return
