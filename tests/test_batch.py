@@ -176,3 +176,17 @@ def test_a_cluster_that_cannot_be_reached_is_one_line_and_writes_nothing(
     err = capsys.readouterr().err.strip()
     assert err.startswith("sfb-video: error: cannot reach the Ray cluster at 127.0.0.1:1") and "\n" not in err
     assert not out.exists()
+
+
+def test_a_list_of_clips_that_does_not_exist_is_refused_before_ray_starts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def no_ray(*args: object, **kwargs: object) -> None:
+        raise AssertionError("Ray was started for a batch with no clips")
+
+    monkeypatch.setattr(sfb_video.cluster, "connected", no_ray)
+    out = tmp_path / "runs"
+    assert main(["batch", str(tmp_path / "missing.txt"), "--out", str(out), *BATCH]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"sfb-video: error: list of clips not found: {tmp_path / 'missing.txt'}"
+    assert not out.exists()

@@ -10,7 +10,7 @@ import torch
 from sfb_video.config import RenderConfig
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.prototypes import load_prototype
-from sfb_video.model.formation import composite
+from sfb_video.model.formation import blend
 from sfb_video.render import MeshRenderer, fused, kernels, rasterize
 from sfb_video.render.shader import shade
 
@@ -42,7 +42,7 @@ def _run(blur: bool, compiled: bool, dtype: torch.dtype, prototype: str) -> list
             image, alpha = out.rgb, out.alpha
     else:
         out = shade(rasterize(v, topo, camera, settings), topo, tex, settings.sigma_inv)
-        image, alpha = (composite(out.rgb, out.alpha, background), out.alpha) if blur else (out.rgb, out.alpha)
+        image, alpha = (blend(out.rgb, out.alpha, background), out.alpha) if blur else (out.rgb, out.alpha)
     loss = (image * (weights[0] if blur else weights)).sum() + 3 * (alpha * weights[:, :1]).sum()
     loss.backward()
     return [image.detach(), alpha.detach(), v.grad, tex.grad]

@@ -1,0 +1,47 @@
+"""The evaluation runner's joint windows: a window whose fit diverged is left out with a note,
+as the pipeline leaves it out, and any other error is raised, not taken for divergence."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from sfb_video.config import load_config
+from sfb_video.errors import DivergenceError
+from sfb_video.evaluation import runner
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.stages.types import FrameStatus
+
+
+def _joint_rows(monkeypatch: pytest.MonkeyPatch, error: Exception) -> list[runner.FrameRow]:
+    def fit(*args: object) -> None:
+        raise error
+
+    monkeypatch.setattr(runner, "fit_track_window", fit)
+    monkeypatch.setattr(runner, "window_frame", lambda *args: None)
+    monkeypatch.setattr(runner, "estimate_subframes", lambda *args: None)
+    monkeypatch.setattr(runner, "score_frame", lambda *args: {"tiou": 0.5, "psnr": 20.0, "ssim": 0.5})
+    image = np.zeros((8, 8, 3))
+    frame = SimpleNamespace(image=image, background=image, box=(0, 0, 4, 4))
+    fitted = {i: (frame, SimpleNamespace(start="warm", prototype="sphere"), 1.0) for i in range(3)}
+    statuses = [FrameStatus(i, "fitted", (0, 0, 4, 4), track=0) for i in range(3)]
+    sequence = SimpleNamespace(dataset="synthetic", name="seq")
+    camera = PinholeCamera.from_fov(8, 8, 45.0)
+    args = (sequence, statuses, fitted, [], camera, load_config("fast"), torch.device("cpu"), None, None)
+    return runner._joint_rows(*args)  # type: ignore[arg-type]
+
+
+def test_a_diverged_window_keeps_its_frames_single_fits_and_says_so(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rows = _joint_rows(monkeypatch, DivergenceError("the joint fit diverged"))
+    assert [(r.frame, r.status, r.track) for r in rows] == [(0, "warm", 0), (1, "warm", 0), (2, "warm", 0)]
+    assert "seq: joint fit of frames 0-2 skipped: the joint fit diverged" in capsys.readouterr().err
+
+
+def test_any_other_error_of_a_window_is_raised(monkeypatch: pytest.MonkeyPatch) -> None:
+    with pytest.raises(RuntimeError, match="CUDA out of memory"):
+        _joint_rows(monkeypatch, RuntimeError("CUDA out of memory"))
