@@ -368,7 +368,7 @@ def _eval_sequences(args: argparse.Namespace) -> list:
 def cmd_eval(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from sfb_video.evaluation.runner import MODES, run_sequence
+    from sfb_video.evaluation.runner import MODES, baseline_rows, run_sequence
     from sfb_video.evaluation.tables import TABLE, markdown, summarise, write_tables
 
     config = load_config(args.config, args.set)
@@ -387,6 +387,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     with open_run(out, "eval", record, overwrite=args.overwrite, keep=lambda f: (f / TABLE).is_file()) as run:
         sequences = _eval_sequences(args)
         masks = _mask_source(args, config, device)
+        # The benchmark's baselines, to read every sequence's score against (no fitting).
+        rows = [row for s in sequences for row in baseline_rows(s, args.max_frames)]
         # The joint mode's seeds are the video mode's fits: one run scores both.
         both = "joint" in modes
         runs = [(s, m) for s in sequences for m in modes if not (both and m == "video")]
@@ -398,7 +400,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         # disable=None: no bar when stderr is not a terminal (logs, CI).
         with tqdm(total=frames, desc="eval", unit="frame", disable=True if args.quiet else None) as bar:
             if args.ray_address is not None:
-                rows, errors = _eval_on_ray(args, config, runs, both, bar)
+                fitted, errors = _eval_on_ray(args, config, runs, both, bar)
+                rows += fitted
                 if errors:
                     left = f"Incomplete: {len(errors)} job(s) failed; the first: {errors[0]}.\n\n"
                     write_tables(run.work, rows, left + note)

@@ -24,6 +24,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
+from sfb_video import metrics
 from sfb_video.config import Config
 from sfb_video.errors import DivergenceError, NoObjectError
 from sfb_video.evaluation.datasets import BenchmarkFrame
@@ -45,6 +46,9 @@ from sfb_video.stages.windows import (
 from sfb_video.synth import SyntheticClip
 
 MODES = ("per-frame", "video", "joint")
+BASELINES = ("Im", "Bg")
+"""The benchmark's baselines: the blurred frame ('Im') or the background ('Bg') as every
+sub-frame. A method that does not beat 'Im' on a sequence has not deblurred it."""
 
 
 class Sequence(Protocol):
@@ -127,6 +131,25 @@ def score_frame(
     truth = frame.subframes[:, y : y + h, x : x + w]
     truth_3d = None if clip is None else (clip.truth[frame.index].motion, clip.scene.mesh)
     return score_estimate(result.state, estimate, truth, camera, frame.centres, frame.radius, truth_3d)[0]
+
+
+def baseline_rows(sequence: Sequence, max_frames: int | None = None) -> list[FrameRow]:
+    """The rows of the benchmark's baselines (:data:`BASELINES`) on every frame of ``sequence``
+    (the first ``max_frames``): the frame's tight box of the blurred image, or of the background,
+    as each of its sub-frames. They estimate no position: their TIoU is unknown."""
+    rows = []
+    for position, frame in enumerate(sequence.frames()):
+        if max_frames is not None and position >= max_frames:
+            break
+        x, y, w, h = frame.box
+        truth = frame.subframes[:, y : y + h, x : x + w]
+        for mode, still in zip(BASELINES, (frame.image, frame.background), strict=True):
+            estimate = np.broadcast_to(still[y : y + h, x : x + w], truth.shape)
+            psnr, ssim = metrics.psnr(estimate, truth), metrics.ssim(estimate, truth)
+            rows.append(
+                FrameRow(sequence.dataset, sequence.name, frame.index, mode, "baseline", math.nan, psnr, ssim, 0.0)
+            )
+    return rows
 
 
 def mode_config(config: Config, mode: str) -> Config:

@@ -1,5 +1,7 @@
 """Tables of evaluation scores: every frame, the mean per sequence, and the total per mode.
 
+The benchmark's 'Im' and 'Bg' baselines (the blurred frame, the background as every sub-frame)
+are rows of every table, per sequence, so that each sequence's score reads against them.
 Totals follow the benchmark: a dataset's TIoU, PSNR and SSIM are the mean over its sequences of
 each sequence's mean over frames (so a long sequence does not outweigh a short one), and its
 time is the mean over all frames. 3D errors, known only on synthetic data, are averaged the same
@@ -17,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from sfb_video.atomic import atomic_write_bytes
-from sfb_video.evaluation.runner import MODES, FrameRow
+from sfb_video.evaluation.runner import BASELINES, MODES, FrameRow
 
 MEASURES = {
     "tiou": ("TIoU", "{:.3f}"),
@@ -37,9 +39,10 @@ def _mean(values: list[float]) -> float:
 
 
 def summarise(rows: list[FrameRow]) -> list[dict]:
-    """One record per (sequence, mode) with its frame count and mean measures, then a total per mode."""
+    """One record per (sequence, mode) with its frame count and mean measures, then a total per
+    mode; the benchmark's baselines come first, as modes of their own."""
     records = []
-    for mode in MODES:
+    for mode in (*BASELINES, *MODES):
         sequences = list(dict.fromkeys(r.sequence for r in rows if r.mode == mode))
         per_sequence = []
         for name in sequences:

@@ -3,6 +3,7 @@ as the pipeline leaves it out, and any other error is raised, not taken for dive
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -45,3 +46,20 @@ def test_a_diverged_window_keeps_its_frames_single_fits_and_says_so(
 def test_any_other_error_of_a_window_is_raised(monkeypatch: pytest.MonkeyPatch) -> None:
     with pytest.raises(RuntimeError, match="CUDA out of memory"):
         _joint_rows(monkeypatch, RuntimeError("CUDA out of memory"))
+
+
+def test_the_baselines_score_the_blurred_frame_and_the_background_as_every_subframe() -> None:
+    rng = np.random.default_rng(0)
+    background = rng.uniform(0.2, 0.4, (24, 32, 3))
+    image = background.copy()
+    image[8:16, 10:22] = 0.9
+    # A still object: every sub-frame is the frame itself, the truth the 'Im' baseline matches.
+    subframes = np.repeat(image[None], 2, axis=0)
+    frames = [SimpleNamespace(index=0, box=(6, 5, 20, 14), image=image, background=background, subframes=subframes)]
+    sequence = SimpleNamespace(dataset="synthetic", name="seq", frames=lambda: iter(frames))
+    rows = runner.baseline_rows(sequence)  # type: ignore[arg-type]
+    im, bg = rows
+    assert (im.mode, bg.mode) == ("Im", "Bg") and math.isnan(im.tiou)
+    assert im.psnr == 100.0 and im.ssim == pytest.approx(1.0)  # equal to the truth on the box
+    box_mse = np.mean((background[5:19, 6:26] - subframes[:, 5:19, 6:26]) ** 2)
+    assert bg.psnr == pytest.approx(-10 * math.log10(box_mse), rel=1e-5) and bg.psnr < 20

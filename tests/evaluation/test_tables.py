@@ -50,3 +50,15 @@ def test_written_tables_round_trip_and_carry_the_note(tmp_path: Path) -> None:
     with (tmp_path / "sequences.csv").open() as f:
         assert [r["sequence"] for r in csv.DictReader(f)] == ["a", "b", "total"]
     assert (tmp_path / "table.md").read_text().startswith("Incomplete: 1 of 2")
+
+
+def test_the_baselines_come_first_as_modes_of_their_own() -> None:
+    rows = [_row("a", 0, 0.8, 1.0), _row("a", 0, math.nan, 0.0, mode="Im"), _row("a", 0, math.nan, 0.0, mode="Bg")]
+    assert [(r["sequence"], r["mode"]) for r in summarise(rows)] == [
+        ("a", "Im"),
+        ("total", "Im"),
+        ("a", "Bg"),
+        ("total", "Bg"),
+        ("a", "per-frame"),
+        ("total", "per-frame"),
+    ]
