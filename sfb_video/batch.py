@@ -27,7 +27,6 @@ from sfb_video.config import Config
 from sfb_video.devices import resolve_device
 from sfb_video.errors import OutputError, SfbError, printable
 from sfb_video.stages.process import ClipOptions, finished_summary, process_clip
-from sfb_video.stages.read import check_video
 
 VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".flv"})
 """A folder's files with these suffixes are its clips."""
@@ -142,7 +141,6 @@ def run_clip(
     started = time.perf_counter()
     row = ClipRow(job.name, str(job.video), str(job.out), FAILED)
     try:
-        check_video(job.video)
         where = resolve_device(device)
         process = options.for_clip(job.video, job.out)
         summary = finished_summary(process, config, where)

@@ -86,7 +86,8 @@ def clip_options(args: argparse.Namespace) -> ClipOptions:
         object_diameter=args.object_diameter,
         overwrite=args.overwrite,
         masks=args.masks,
-        defmo_weights=_defmo_weights(args),
+        # Absolute, as the background: a Ray worker does not start in this process's folder.
+        defmo_weights=None if args.defmo_weights is None else Path(args.defmo_weights).absolute(),
     )
 
 

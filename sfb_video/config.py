@@ -219,7 +219,7 @@ class JointConfig(_Checked):
     motion: str = one_of("auto", ("auto", "constant_velocity", "constant_acceleration", "bounce"))
     """The trajectory's model; ``auto`` takes constant acceleration, or a bounce where one
     smooth path misses a seed's streak end by more than ``bounce_residual`` and a path broken in
-    one gap between exposures brings every end within it (:func:`sfb_video.fitting.window.choose_motion`)."""
+    one gap between exposures brings every end within it (:func:`sfb_video.fitting.path.choose_motion`)."""
     bounce_residual: float = bounded(0.15, gt=0)
     """``auto`` motion: a bounce is tried when one smooth path passes farther than this from a
     seed's streak end, in apparent object diameters."""

@@ -182,15 +182,15 @@ def follow_box(
     """
     x, y, w, h = box
     changed = difference_mask(frame.pixels, frame.background_pixels, config.detect)[y : y + h, x : x + w]
-    inside = torch.zeros(frame.pixels.shape[1:], dtype=torch.bool)
-    inside[y : y + h, x : x + w] = changed
-    colour = blob_colour(frame.pixels.cpu().numpy(), frame.background_pixels.cpu().numpy(), inside.numpy())
-    blob = torch.zeros_like(inside)
+    blob = torch.zeros(frame.pixels.shape[1:], dtype=torch.bool)
     blob[y : y + h, x : x + w] = True
-    detection = Detection(frame.index, box, blob, 0, colour if bool(inside.any()) else None)
     ys, xs = torch.nonzero(changed, as_tuple=True)
     if xs.numel() == 0:
-        return detection, None
+        return Detection(frame.index, box, blob), None
+    inside = torch.zeros_like(blob)
+    inside[y : y + h, x : x + w] = changed
+    colour = blob_colour(frame.pixels.cpu().numpy(), frame.background_pixels.cpu().numpy(), inside.numpy())
+    detection = Detection(frame.index, box, blob, 0, colour)
     centre = (x + float(xs.double().mean()), y + float(ys.double().mean()))
     best: tuple[float, FrameResult] | None = None
     for prediction, option in predictions:

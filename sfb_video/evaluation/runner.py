@@ -26,6 +26,7 @@ import torch
 
 from sfb_video import metrics
 from sfb_video.config import Config
+from sfb_video.crop import Box
 from sfb_video.errors import DivergenceError, NoObjectError
 from sfb_video.evaluation.datasets import BenchmarkFrame
 from sfb_video.evaluation.scoring import render_estimate, score_estimate
@@ -84,12 +85,18 @@ class FrameRow:
     the video and joint modes."""
 
 
-def _tensor(image: np.ndarray) -> torch.Tensor:
-    return torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float()
+def _inputs(frame: BenchmarkFrame) -> FrameWithBackground:
+    """The frame and its background as the pipeline's stages take them, (3, H, W) each."""
+
+    def tensor(image: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float()
+
+    return FrameWithBackground(frame.index, tensor(frame.image), tensor(frame.background))
 
 
 def fit_benchmark_frame(
-    frame: BenchmarkFrame,
+    inputs: FrameWithBackground,
+    box: Box,
     camera: PinholeCamera,
     config: Config,
     previous: FrameResult | None,
@@ -97,7 +104,8 @@ def fit_benchmark_frame(
     masks: MaskSource | None = None,
     earlier: FrameResult | None = None,
 ) -> FrameResult:
-    """Fit one frame from the benchmark's inputs, warm from ``previous`` when given (with
+    """Fit one frame from the benchmark's inputs (the frame and its background, the object's
+    tight ``box``), warm from ``previous`` when given (with
     ``earlier``, the frame before it on the track, its motion continues turning).
 
     ``masks`` gives the fit its sub-frame masks (None: the difference mask).
@@ -105,12 +113,10 @@ def fit_benchmark_frame(
     Raises:
         NoObjectError: when the box shows no difference from the background.
     """
-    height, width = frame.image.shape[:2]
-    x, y, w, h = frame.box
-    blob = torch.zeros(height, width, dtype=torch.bool)
+    x, y, w, h = box
+    blob = torch.zeros(inputs.pixels.shape[1:], dtype=torch.bool)
     blob[y : y + h, x : x + w] = True
-    inputs = FrameWithBackground(frame.index, _tensor(frame.image), _tensor(frame.background))
-    detection = Detection(frame.index, frame.box, blob)
+    detection = Detection(inputs.index, box, blob)
     return fit_detection(inputs, detection, camera, config, previous, device, masks, earlier)
 
 
@@ -203,7 +209,7 @@ def run_sequence(
             continue
         height, width = frame.image.shape[:2]
         camera = clip.camera if clip is not None else PinholeCamera.from_fov(width, height, config.camera.fov_y_deg)
-        inputs = FrameWithBackground(frame.index, _tensor(frame.image), _tensor(frame.background))
+        inputs = _inputs(frame)
         warm, colour = None, None
         if mode != "per-frame":
             # The pipeline's tracker decides the tracks, on the box the benchmark hands over.
@@ -214,7 +220,8 @@ def run_sequence(
             colour = detection.colour
         start = time.perf_counter()
         try:
-            result = fit_benchmark_frame(frame, camera, config, warm, device, masks, tracker and tracker.earlier)
+            earlier = None if tracker is None else tracker.earlier
+            result = fit_benchmark_frame(inputs, frame.box, camera, config, warm, device, masks, earlier)
         except NoObjectError:
             row = FrameRow(sequence.dataset, sequence.name, frame.index, mode, "no_object", 0.0, 0.0, 0.0, 0.0)
             statuses.append(FrameStatus(frame.index, "no_object"))
@@ -287,8 +294,7 @@ def _joint_rows(
         crops = {}
         for i in members:
             frame, result, _ = fitted[i]
-            inputs = FrameWithBackground(i, _tensor(frame.image), _tensor(frame.background))
-            crops[i] = window_frame(inputs, frame.box, result, camera, config, device)
+            crops[i] = window_frame(_inputs(frame), frame.box, result, camera, config, device)
         previous = previous_window(windows, done, track, members[0])
         started = time.perf_counter()
         try:

@@ -23,6 +23,8 @@ from sfb_video.model.shape import ShapeParams
 StepCallback = Callable[[int, dict[str, float]], None]
 """Called with (step, loss terms) after every step of a fit."""
 
+DIVERGED = "the fit diverged from its first step (non-finite loss); check the input images"
+
 
 @dataclass(frozen=True)
 class Step:
@@ -138,7 +140,7 @@ class Optimisation:
             DivergenceError: when no step was finite.
         """
         if self.best is None:
-            raise DivergenceError("the fit diverged from its first step (non-finite loss); check the input images")
+            raise DivergenceError(DIVERGED)
         for module, state in zip(self.objective.modules, self.best.states, strict=True):
             module.load_state_dict(state)
         return self.best
@@ -168,7 +170,7 @@ def race(
             fit.run(fit.iterations, on_step)
     fitted = [k for k, fit in candidates.items() if fit.best is not None]
     if not fitted:
-        raise DivergenceError("the fit diverged from its first step (non-finite loss); check the input images")
+        raise DivergenceError(DIVERGED)
     return min(fitted, key=lambda k: candidates[k].best_image_loss), trials
 
 

@@ -31,7 +31,7 @@ from sfb_video.geometry.pose import pose_vertices
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.model import losses
 from sfb_video.model.formation import exposure_times
-from sfb_video.model.motion import Motion, MotionParams, Streak, streak_from_mask
+from sfb_video.model.motion import MIN_STREAK_PIXELS, Motion, MotionParams, Streak, streak_from_mask
 from sfb_video.model.scene import ObjectState
 from sfb_video.model.shape import ShapeParams
 from sfb_video.render import MeshRenderer
@@ -169,8 +169,10 @@ def _check_crop(crop: Crop) -> None:
         raise SfbError("image or background contains NaN or infinite values")
     if float(crop.object_mask.sum()) == 0:
         raise NoObjectError("no object: the image does not differ from the background in the object box")
-    if int((crop.object_mask > 0.5).sum()) < 2:
-        raise NoObjectError("no object: fewer than 2 pixels differ from the background in the object box")
+    if int((crop.object_mask > 0.5).sum()) < MIN_STREAK_PIXELS:
+        raise NoObjectError(
+            f"no object: fewer than {MIN_STREAK_PIXELS} pixels differ from the background in the object box"
+        )
 
 
 def fit_frame(

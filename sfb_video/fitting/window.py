@@ -133,7 +133,7 @@ class WindowObjective:
             rendered, alpha = window.renderers[k].blurred(posed, shape.topology, texture, frame.crop.background)
             terms, weights = frame_terms(frame.crop, frame.masks, rendered, alpha, config, progress)
             frame_total = frame_total + weighted_sum(terms, weights)
-            per_frame[frame.index] = {k: float(v.detach()) for k, v in terms.items()}
+            per_frame[frame.index] = {name: float(v.detach()) for name, v in terms.items()}
         texture_tv = losses.texture_tv(texture)
         laplacian = losses.laplacian(vertices, shape.topology.edges)
         total = frame_total / len(window.frames) + config.w_texture * texture_tv + config.w_laplacian * laplacian

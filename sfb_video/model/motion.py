@@ -115,6 +115,10 @@ class Streak:
     diameter: float
 
 
+MIN_STREAK_PIXELS = 2
+"""The fewest mask pixels a streak is fitted to: its axis comes from their second moments."""
+
+
 def streak_from_mask(mask: torch.Tensor) -> Streak:
     """Fit a capsule (a disc of diameter d swept along a segment) to the (h, w) mask.
 
@@ -122,7 +126,7 @@ def streak_from_mask(mask: torch.Tensor) -> Streak:
     A = (E - d) d + pi d^2 / 4, which gives d; the path ends lie d / 2 inside the extent.
     """
     ys, xs = torch.nonzero(mask > 0.5, as_tuple=True)
-    if xs.numel() < 2:
+    if xs.numel() < MIN_STREAK_PIXELS:
         raise NoObjectError(f"the object's mask has {xs.numel()} pixel(s): too few for a streak to start from")
     pts = torch.stack((xs, ys), -1).to(torch.float64)
     centre = pts.mean(0)

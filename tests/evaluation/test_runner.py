@@ -26,8 +26,8 @@ def _joint_rows(monkeypatch: pytest.MonkeyPatch, error: Exception) -> list[runne
     monkeypatch.setattr(runner, "estimate_subframes", lambda *args: None)
     monkeypatch.setattr(runner, "score_frame", lambda *args: {"tiou": 0.5, "psnr": 20.0, "ssim": 0.5})
     image = np.zeros((8, 8, 3))
-    frame = SimpleNamespace(image=image, background=image, box=(0, 0, 4, 4))
-    fitted = {i: (frame, SimpleNamespace(start="warm", prototype="sphere"), 1.0) for i in range(3)}
+    frames = [SimpleNamespace(index=i, image=image, background=image, box=(0, 0, 4, 4)) for i in range(3)]
+    fitted = {i: (frames[i], SimpleNamespace(start="warm", prototype="sphere"), 1.0) for i in range(3)}
     statuses = [FrameStatus(i, "fitted", (0, 0, 4, 4), track=0) for i in range(3)]
     sequence = SimpleNamespace(dataset="synthetic", name="seq")
     camera = PinholeCamera.from_fov(8, 8, 45.0)
