@@ -112,3 +112,19 @@ def signed_volume(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """Signed volume of a closed mesh, positive when faces are oriented outward."""
     a, b, c = (vertices[..., faces[:, k], :] for k in range(3))
     return (a * torch.linalg.cross(b, c, dim=-1)).sum((-1, -2)) / 6
+
+
+def box_fill(vertices: torch.Tensor, faces: torch.Tensor) -> float:
+    """How boxy a closed mesh is: its volume over that of its bounding box along its principal
+    axes. 1 for a box (of any proportions), pi / 6 = 0.52 for a sphere or an ellipsoid, pi / 4
+    = 0.79 for a cylinder.
+
+    Args:
+        vertices: (V, 3); faces: (F, 3), oriented outward.
+    """
+    centred = vertices.double() - vertices.double().mean(0)
+    # Principal axes of the surface's vertices; a box's are its edges' directions.
+    _, axes = torch.linalg.eigh(centred.T @ centred)
+    local = centred @ axes
+    extent = (local.amax(0) - local.amin(0)).prod()
+    return float(signed_volume(vertices.double(), faces) / extent)

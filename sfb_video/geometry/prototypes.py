@@ -5,7 +5,9 @@ mapping: vertices on a seam get one UV per side, so no face's UVs wrap across th
 The counts follow the paper: a sphere of 1212 vertices / 2420 faces, a larger sphere of
 1538 / 3072 and a torus of 1536 / 3072. The capsule (the sphere's mesh with its hemispheres
 pulled apart along y) is ours: a start for pens and keys, whose streaks a sphere explains with
-an object stretched along them.
+an object stretched along them. So are the box and the disc: the sphere's mesh pushed out along
+each vertex's ray onto a cube's faces, or onto a flat cylinder's (its faces normal to z), so that
+they share the sphere's texture map and count; boxes and frisbees are what people throw.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import torch
 
 from sfb_video.geometry.mesh import MeshTopology, normalize_vertices, signed_volume
 
-PROTOTYPE_NAMES = ("sphere", "sphere_large", "torus", "capsule")
+PROTOTYPE_NAMES = ("sphere", "sphere_large", "torus", "capsule", "box", "disc")
 
 
 def _grid_faces(rows: int, cols: int, wrap_cols: bool, wrap_rows: bool) -> torch.Tensor:
@@ -120,6 +122,32 @@ def capsule(rings: int = 22, segments: int = 55, half_length: float = 1.5) -> tu
     return normalize_vertices(vertices), topology
 
 
+def box(rings: int = 22, segments: int = 55) -> tuple[torch.Tensor, MeshTopology]:
+    """A cube: each sphere vertex moved along its ray onto the cube's surface (flat faces,
+    sharp edges, the sphere's topology and texture map).
+
+    Returns:
+        vertices (V, 3) at unit scale and the topology.
+    """
+    vertices, topology = uv_sphere(rings, segments)
+    cube = vertices / vertices.abs().amax(-1, keepdim=True)
+    return normalize_vertices(cube), topology
+
+
+def disc(rings: int = 22, segments: int = 55, thickness: float = 0.25) -> tuple[torch.Tensor, MeshTopology]:
+    """A flat cylinder in the x-y plane (its faces normal to z), ``thickness`` of its diameter:
+    each sphere vertex moved along its ray onto the cylinder's surface.
+
+    Returns:
+        vertices (V, 3) at unit scale and the topology.
+    """
+    vertices, topology = uv_sphere(rings, segments)
+    radial = vertices[:, :2].norm(dim=-1) / 0.5
+    height = vertices[:, 2].abs() / (0.5 * thickness)
+    flat = vertices / torch.maximum(radial, height)[:, None]
+    return normalize_vertices(flat), topology
+
+
 def load_prototype(name: str) -> tuple[torch.Tensor, MeshTopology]:
     """Vertices (V, 3) at unit scale and topology of the prototype ``name``."""
     if name == "sphere":
@@ -130,4 +158,8 @@ def load_prototype(name: str) -> tuple[torch.Tensor, MeshTopology]:
         return torus(48, 32)
     if name == "capsule":
         return capsule()
+    if name == "box":
+        return box()
+    if name == "disc":
+        return disc()
     raise ValueError(f"unknown prototype {name!r}; choose one of {', '.join(PROTOTYPE_NAMES)}")

@@ -7,8 +7,15 @@ from sfb_video.errors import MeshError
 from sfb_video.geometry.mesh import MeshTopology, normalize_vertices, signed_volume
 from sfb_video.geometry.prototypes import PROTOTYPE_NAMES, load_prototype
 
-COUNTS = {"sphere": (1212, 2420), "sphere_large": (1538, 3072), "torus": (1536, 3072), "capsule": (1212, 2420)}
-EULER = {"sphere": 2, "sphere_large": 2, "torus": 0, "capsule": 2}
+COUNTS = {
+    "sphere": (1212, 2420),
+    "sphere_large": (1538, 3072),
+    "torus": (1536, 3072),
+    "capsule": (1212, 2420),
+    "box": (1212, 2420),
+    "disc": (1212, 2420),
+}
+EULER = {"sphere": 2, "sphere_large": 2, "torus": 0, "capsule": 2, "box": 2, "disc": 2}
 
 
 @pytest.mark.parametrize("name", PROTOTYPE_NAMES)
