@@ -146,6 +146,8 @@ class FitConfig(_Checked):
     """Optimise the texture (off: it keeps its start). With ``deform`` off and a warm start from
     a known object's mesh and texture, only the motion is fitted, and then its rotation is
     recovered, which one frame cannot tell apart from a free texture."""
+    learn_motion: bool = True
+    """Optimise the motion (off: it keeps its start, as a window's refined frames may)."""
     iterations: int = bounded(500, ge=1)
     """Adam steps of a cold start (paper: 500)."""
     warm_iterations: int = bounded(150, ge=1)
@@ -223,9 +225,27 @@ class JointConfig(_Checked):
     bounce_residual: float = bounded(0.15, gt=0)
     """``auto`` motion: a bounce is tried when one smooth path passes farther than this from a
     seed's streak end, in apparent object diameters."""
-    prototypes: tuple[str, ...] = one_of(("capsule",), PROTOTYPE_NAMES, may_be_empty=True)
-    """Fresh prototypes that compete with the single-frame fits' mesh on a track's first window
-    (the lowest joint L_I after the trial steps goes on); empty: keep the seeds' mesh."""
+    prototypes: tuple[str, ...] = one_of(
+        ("sphere", "capsule", "box", "disc", "torus"), PROTOTYPE_NAMES, may_be_empty=True
+    )
+    """The shapes a track's first window chooses among, each stretched, turned and sized to the
+    footprint its streaks show (:mod:`sfb_video.fitting.shapes`) and scored by its best coarse
+    texture; the chosen one races the single-frame fits' mesh. Empty: keep the seeds' mesh."""
+    shape_spin_axes: int = bounded(8, ge=1)
+    """Axes of the coarse spin grid (at ``spin_magnitudes``) that each shape of the trial is
+    scored at; the chosen shape's spin is then searched on the full grid."""
+    shape_texture: int = bounded(16, ge=2)
+    """Texels a side of the shape trial's texture: coarse, so that the outline decides."""
+    shape_margin: float = bounded(0.05, ge=0, le=0.5)
+    """A prototype other than the sphere is chosen only where its residual is this fraction
+    below the sphere's."""
+    refine: str = one_of("pose", ("off", "texture", "pose"))
+    """After a window's joint fit, refine each of its frames from it, the shared mesh held:
+    ``texture`` fits the frame's own texture on the window's trajectory, ``pose`` its texture
+    and pose (``fit.warm_iterations``, stopping on a plateau); ``off`` keeps the window's."""
+    laplacian_end: float = bounded(0.1, gt=0, le=1)
+    """The Laplacian's weight falls geometrically over the joint fit from ``fit.w_laplacian`` to
+    this fraction of it (1: constant)."""
     trial_fraction: float = bounded(0.2, gt=0, le=1)
     """The share of ``iterations`` every competing shape is fitted before the choice."""
     max_explained_drop: float = bounded(0.15, ge=0)

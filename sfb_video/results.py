@@ -20,7 +20,7 @@ import torch
 from sfb_video.atomic import atomic_write_bytes
 from sfb_video.crop import Box
 from sfb_video.errors import SfbError
-from sfb_video.fitting.window import JointResult
+from sfb_video.fitting.window import JointResult, Refined
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
 from sfb_video.model.motion import Motion
@@ -74,6 +74,10 @@ class FrameResult:
         return dataclasses.replace(self, state=state, masks=self.masks.flip(0), masks_reversed=not self.masks_reversed)
 
 
+def _motion_record(motion: Motion) -> dict[str, torch.Tensor]:
+    return {k: getattr(motion, k).detach().cpu() for k in ("x0", "dx", "rot0", "omega")}
+
+
 def save_result(folder: Path, result: FrameResult) -> None:
     """Write ``result`` into the run ``folder``, atomically."""
     s = result.state
@@ -87,7 +91,7 @@ def save_result(folder: Path, result: FrameResult) -> None:
         "uvs": s.topology.uvs.cpu(),
         "face_uvs": s.topology.face_uvs.cpu(),
         "texture": s.texture.detach().cpu(),
-        "motion": {k: getattr(s.motion, k).detach().cpu() for k in ("x0", "dx", "rot0", "omega")},
+        "motion": _motion_record(s.motion),
         "start": result.start,
         "prototype": result.prototype,
         "losses": dict(result.losses),
@@ -181,6 +185,11 @@ def save_window(folder: Path, window: SavedWindow) -> None:
         "seconds": r.seconds,
         "bounce": r.bounce,
         "trials": dict(r.trials),
+        "shapes": dict(r.shapes),
+        "refined": {
+            int(k): {"texture": v.texture.cpu(), "motion": _motion_record(v.motion), "losses": dict(v.losses)}
+            for k, v in r.refined.items()
+        },
     }
     buffer = io.BytesIO()
     torch.save(record, buffer)
@@ -204,6 +213,11 @@ def load_window(path: Path) -> SavedWindow:
             seconds=float(r["seconds"]),
             bounce=r["bounce"],
             trials=r["trials"],
+            shapes=r.get("shapes", {}),  # saved before the footprint's trial: none
+            refined={
+                int(k): Refined(v["texture"], Motion(**v["motion"]), v["losses"])
+                for k, v in r.get("refined", {}).items()
+            },
         )
         # Windows saved before the quality check have neither field, and stood for their frames.
         explained = {int(k): (float(v[0]), float(v[1])) for k, v in r.get("explained", {}).items()}

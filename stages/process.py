@@ -228,8 +228,10 @@ def _joint_summary(folder: Path, windows: list[tuple[int, list[int]]]) -> dict:
                 "exposure_fraction": joint.trajectory.exposure_fraction,
                 "prototype": joint.prototype,
                 "prototype_trials": joint.trials,
+                "shape_trial": joint.shapes,
+                "refined": sorted(joint.refined),
                 "image_loss_before": sum(saved.before[i]["image"] for i in frames) / len(frames),
-                "image_loss_after": sum(joint.losses[i]["image"] for i in frames) / len(frames),
+                "image_loss_after": sum(joint.frame_losses(i)["image"] for i in frames) / len(frames),
                 "explained_before": _mean([saved.explained[i][0] for i in frames if i in saved.explained]),
                 "explained_after": _mean([saved.explained[i][1] for i in frames if i in saved.explained]),
                 "accepted": saved.accepted,
@@ -240,6 +242,7 @@ def _joint_summary(folder: Path, windows: list[tuple[int, list[int]]]) -> dict:
     return {
         "enabled": bool(windows),
         "windows_accepted": sum(r["accepted"] for r in rows),
+        "windows_rejected": sum(not r["accepted"] for r in rows),
         "exposure_fraction": fractions[len(fractions) // 2] if fractions else None,
         "windows": rows,
     }

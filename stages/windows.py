@@ -6,9 +6,10 @@ A track's fitted frames are cut into windows of ``joint.window`` frames that sli
 clip is streamed once more and each window is fitted as soon as its last frame has been read,
 from crops rebuilt exactly as the single-frame fits made them, so memory holds one window's
 crops whatever the clip's length. A window's fit is saved into the run folder when done: the
-unit a resumed run reuses. The first window of a track tries the fresh prototypes of
-``joint.prototypes`` against the single-frame fits' mesh; each later window starts from its
-predecessor's mesh, texture and poses on the frames they share, so a track keeps one shape.
+unit a resumed run reuses. The first window of a track chooses a shape among
+``joint.prototypes`` from its streaks and races it against the single-frame fits' mesh; each
+later window starts from its predecessor's mesh, texture and poses on the frames they share, so
+a track keeps one shape. Each window's frames are then refined from its fit (``joint.refine``).
 
 Every export then reads a frame's state from the window that covers it best (the one whose
 middle is nearest, :func:`frame_windows`).
@@ -27,7 +28,7 @@ from sfb_video.config import Config
 from sfb_video.crop import make_crop
 from sfb_video.errors import DivergenceError
 from sfb_video.fitting.path import Seed
-from sfb_video.fitting.window import WindowFrame, fit_window
+from sfb_video.fitting.window import WindowFrame, fit_window, refine_frames
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.scene import ObjectState
 from sfb_video.results import (
@@ -97,7 +98,7 @@ def with_joint(result: FrameResult, window: SavedWindow) -> FrameResult:
         result,
         state=joint.state(result.index),
         prototype=joint.prototype,
-        losses=joint.losses[result.index],
+        losses=joint.frame_losses(result.index),
         curve=joint.curve,
     )
 
@@ -143,7 +144,8 @@ def fit_track_window(
 
     Its seeds are its predecessor's poses on the frames they share and the single-frame fits
     elsewhere; the predecessor's shape starts the fit, and only a track's first window (no
-    predecessor) tries the fresh prototypes of ``joint.prototypes``.
+    predecessor) runs the shape trial of ``joint.prototypes``; then each frame is refined from
+    the joint fit (``joint.refine``).
 
     Args:
         track: the track's number; members: the window's frame indices, consecutive.
@@ -157,7 +159,7 @@ def fit_track_window(
         before[index] = fit.losses
         if previous is not None and index in previous.result.losses:
             joint = previous.result
-            seed = Seed(index, joint.state(index), joint.prototype, joint.losses[index]["image"])
+            seed = Seed(index, joint.state(index), joint.prototype, joint.frame_losses(index)["image"])
             shape_from = shape_from or seed
         else:
             seed = Seed(index, fit.state, fit.prototype, fit.losses["image"])
@@ -173,6 +175,9 @@ def fit_track_window(
         prototypes=() if previous is not None else config.joint.prototypes,
         shape_from=shape_from,
     )
+    if config.joint.refine != "off":
+        frames = [crops[i] for i in members]
+        result = refine_frames(result, frames, config.fit, config.render, pose=config.joint.refine == "pose")
     explained = {
         i: (_quality(single(i).state, crops[i], config), _quality(result.state(i), crops[i], config)) for i in members
     }

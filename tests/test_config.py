@@ -38,7 +38,10 @@ def test_dotted_overrides_are_typed() -> None:
         ("video.exposure_fraction=1.5", "video.exposure_fraction must be > 0 and <= 1, got 1.5"),
         ("fit.w_image=-1", "fit.w_image must be >= 0"),
         ("fit.size_range=[0.5, 0.1]", "low < high"),
-        ("fit.prototypes=[cube]", "fit.prototypes must be one of sphere, sphere_large, torus, capsule; got 'cube'"),
+        (
+            "fit.prototypes=[cube]",
+            "fit.prototypes must be one of sphere, sphere_large, torus, capsule, box, disc; got 'cube'",
+        ),
         ("render.sigma_inv=.nan", "render.sigma_inv must be a finite number"),
     ],
 )

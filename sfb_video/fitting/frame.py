@@ -62,12 +62,17 @@ class FitResult:
 
 @dataclass(frozen=True)
 class WarmStart:
-    """Where a warm-started fit begins: a previous frame's shape and texture, a predicted motion."""
+    """Where a warm-started fit begins: a previous frame's shape and texture, a predicted motion.
+
+    ``at_streak`` moves the motion onto this frame's streak first (a prediction from another
+    frame); off, the motion is this frame's already (a joint fit's pose, refined).
+    """
 
     prototype: str
     vertices: torch.Tensor
     texture: torch.Tensor
     motion: Motion
+    at_streak: bool = True
 
 
 def frame_terms(
@@ -144,7 +149,7 @@ def frame_optimisation(objective: FrameObjective, iterations: int, early_stop: b
         {"params": [p for p in trained if all(p is not r for r in rotation)]},
         {"params": [p for p in trained if any(p is r for r in rotation)], "lr": config.lr_rotation},
     ]
-    optimiser = torch.optim.Adam(groups, lr=config.lr, fused=True)
+    optimiser = torch.optim.Adam([g for g in groups if g["params"]], lr=config.lr, fused=True)
     patience = config.plateau_patience if early_stop else None
     return Optimisation(objective, optimiser, iterations, patience, config.plateau_tolerance)
 
@@ -252,13 +257,16 @@ def _candidate(
     motion = MotionParams(
         crop.camera, config.size_range, config.max_size_ratio, config.max_rotation_deg, config.init_size
     ).to(device)
-    if warm is not None:
+    if warm is None:
+        motion.start_at_streak(streak_from_mask(crop.object_mask))
+    else:
         motion.load_motion(warm.motion)
+    if not config.learn_motion:
+        motion.requires_grad_(False)
+    if warm is not None and warm.at_streak:
         # The streak locates this frame far better than a prediction carried over from the
         # last one, whose errors would add up along a track: the prediction only says which
         # end came first, and the rotation.
         motion.start_at_streak(_oriented(streak_from_mask(crop.object_mask), warm.motion, crop))
-    else:
-        motion.start_at_streak(streak_from_mask(crop.object_mask))
     objective = FrameObjective(crop, shape, motion, masks, config, render_config)
     return frame_optimisation(objective, iterations, early_stop=warm is not None)

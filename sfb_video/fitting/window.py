@@ -13,20 +13,30 @@ The fit starts from single-frame fits of the same frames (the seeds): the trajec
 to their streak ends in the image, and the mesh and texture are those of the seed that explains
 its frame best, its rotation carried to the window's start. Two choices are made on the window,
 not on one frame: the motion model (a bounce where one smooth path leaves the seeds' streak ends
-far apart, :func:`~sfb_video.fitting.path.choose_motion`), and the start: fresh prototypes (a
-capsule for pens and keys) and, on a track's first window, the seed's prototype with the spin
-and texture that a search over spins finds (:mod:`sfb_video.fitting.spin`) compete with the
-seeded mesh for the first part of the fit, and the lowest joint L_I goes on
-(:func:`sfb_video.fitting.engine.race`).
+far apart, :func:`~sfb_video.fitting.path.choose_motion`), and the start. On a track's first
+window the footprint its streaks show once the travel is known chooses a shape
+(:func:`trial_shapes`: round, elongated, boxy or flat prototypes, each stretched, turned and
+sized to it, each at its own best spin, scored by the best coarse texture); that shape, with
+the spin searched on it (:mod:`sfb_video.fitting.spin`), races the seeded mesh for the first
+part of the fit, and the lowest joint L_I goes on (:func:`sfb_video.fitting.engine.race`).
+The Laplacian's weight falls over the fit (``joint.laplacian_end``), and on a shaped start it
+holds the deformation smooth, not the mesh, so corners and thin parts may form and stay.
+
+After the fit each frame is refined from it (:func:`refine_frames`): the mesh held, the frame's
+own texture and pose fitted, so that the window shows one object that explains each frame as
+well as that frame alone can tell.
 
 The fit in parts: :func:`start_window` (the path fitted to the seeds, the motion model, what
-every candidate shares), :func:`window_candidate` (one candidate's optimisation),
-:func:`searched_spin`, and :func:`fit_window`, which races them.
+every candidate shares), :func:`trial_shapes`, :func:`window_candidate` (one candidate's
+optimisation), :func:`searched_spin`, :func:`fit_window`, which races them, and
+:func:`refine_frames`.
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
+import math
 import statistics
 import time
 from dataclasses import dataclass, field
@@ -46,8 +56,9 @@ from sfb_video.fitting.engine import (
     seeded,
     weighted_sum,
 )
-from sfb_video.fitting.frame import frame_terms
+from sfb_video.fitting.frame import WarmStart, fit_frame, frame_terms
 from sfb_video.fitting.path import Seed, apparent_px, choose_motion, fit_path, measured_exposure, path_params
+from sfb_video.fitting.shapes import Footprint, ShapedStart, footprint, shaped_start
 from sfb_video.fitting.spin import SpinScore, score_spin, search_spin, spin_grid, upsample_texture
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
@@ -56,10 +67,15 @@ from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.geometry.rotation import axis_angle_to_matrix
 from sfb_video.model import losses
 from sfb_video.model.formation import exposure_times
+from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.model.shape import ShapeParams
 from sfb_video.model.trajectory import Trajectory, TrajectoryParams
 from sfb_video.render import MeshRenderer
+
+SHAPE_PRUNE = 1.5
+"""A shape of the trial whose residual at the seeds' spins is this many times the best one's is
+not searched at other spins."""
 
 
 @dataclass(frozen=True)
@@ -78,6 +94,20 @@ class WindowFrame:
 
 
 @dataclass(frozen=True)
+class Refined:
+    """One frame of a window refined from the joint fit: the shared mesh held, its own texture
+    and pose (:func:`refine_frames`).
+
+    Attributes:
+        texture: (3, Ht, Wt); motion: the frame's exposure; losses: its single-frame loss terms.
+    """
+
+    texture: torch.Tensor
+    motion: Motion
+    losses: dict[str, float]
+
+
+@dataclass(frozen=True)
 class JointResult:
     """The outcome of a joint fit.
 
@@ -92,8 +122,12 @@ class JointResult:
         curve: the joint loss terms at every step.
         seconds: wall time.
         bounce: the window time of the bounce model's break, else None.
-        trials: per candidate tried (``seed:<prototype>``, ``spin:<prototype>`` for the
-            searched spin, or a fresh prototype's name), its mean L_I after the trial steps.
+        trials: per candidate raced (``seed:<prototype>``; ``shape:<prototype>``, the shape
+            that the footprint's trial chose; ``spin:<prototype>``, the seed's prototype with a
+            searched spin), its mean L_I after the trial steps.
+        shapes: per prototype of the footprint's trial, its coarse texture's residual over the
+            sphere's (:func:`trial_shapes`).
+        refined: per frame refined after the fit, its own texture and pose (:func:`refine_frames`).
     """
 
     prototype: str
@@ -107,10 +141,20 @@ class JointResult:
     seconds: float
     bounce: float | None = None
     trials: dict[str, float] = field(default_factory=dict)
+    shapes: dict[str, float] = field(default_factory=dict)
+    refined: dict[int, Refined] = field(default_factory=dict)
 
     def state(self, index: int) -> ObjectState:
-        """Frame ``index``'s object: the shared mesh and texture, its exposure's motion."""
+        """Frame ``index``'s object: the shared mesh, and its refined texture and pose where the
+        frame was refined, else the shared texture and its exposure's motion on the trajectory."""
+        if index in self.refined:
+            r = self.refined[index]
+            return ObjectState(self.vertices, self.topology, r.texture, r.motion)
         return ObjectState(self.vertices, self.topology, self.texture, self.trajectory.frame_motion(index))
+
+    def frame_losses(self, index: int) -> dict[str, float]:
+        """Frame ``index``'s loss terms as :meth:`state` shows it."""
+        return self.refined[index].losses if index in self.refined else self.losses[index]
 
 
 class WindowObjective:
@@ -118,8 +162,10 @@ class WindowObjective:
     terms (each in its crop, as the single-frame fit weighs them), plus L_T and L_L once; a step
     keeps each frame's terms for the snapshot."""
 
-    def __init__(self, window: WindowStart, shape: ShapeParams, path: TrajectoryParams) -> None:
-        self.window, self.shape, self.path = window, shape, path
+    def __init__(
+        self, window: WindowStart, shape: ShapeParams, path: TrajectoryParams, rest: torch.Tensor | None = None
+    ) -> None:
+        self.window, self.shape, self.path, self.rest = window, shape, path, rest
         self.modules = (shape, path)
 
     def __call__(self, progress: float) -> Step:
@@ -135,8 +181,11 @@ class WindowObjective:
             frame_total = frame_total + weighted_sum(terms, weights)
             per_frame[frame.index] = {name: float(v.detach()) for name, v in terms.items()}
         texture_tv = losses.texture_tv(texture)
-        laplacian = losses.laplacian(vertices, shape.topology.edges)
-        total = frame_total / len(window.frames) + config.w_texture * texture_tv + config.w_laplacian * laplacian
+        laplacian = losses.laplacian(vertices if self.rest is None else vertices - self.rest, shape.topology.edges)
+        # The shape's freedom grows over the fit: held to its start while the path and texture
+        # settle, free enough at the end for corners and thin parts to form.
+        w_laplacian = config.w_laplacian * window.config.laplacian_end**progress
+        total = frame_total / len(window.frames) + config.w_texture * texture_tv + w_laplacian * laplacian
         record = {
             "image": statistics.fmean(r["image"] for r in per_frame.values()),
             "texture": float(texture_tv.detach()),
@@ -181,17 +230,55 @@ class WindowStart:
     def device(self) -> torch.device:
         return self.taus.device
 
-    def oriented(self, spin: torch.Tensor) -> TrajectoryParams:
-        """The seeds' path turning at ``spin`` (3,) rad per frame interval, the best seed keeping
-        its orientation at its frame's start whatever the spin (the base path, changed in place)."""
-        at = float(self.best_seed.index - self.first)
-        self.path.load_rotation(axis_angle_to_matrix(-at * spin) @ self.best_seed.state.motion.rot0, spin)
+    @property
+    def seed_time(self) -> float:
+        """The best seed's exposure start, in window time."""
+        return float(self.best_seed.index - self.first)
+
+    def oriented(
+        self, spin: torch.Tensor, rotation: torch.Tensor | None = None, at: float | None = None
+    ) -> TrajectoryParams:
+        """The seeds' path turning at ``spin`` (3,) rad per frame interval and holding
+        ``rotation`` (3, 3) at window time ``at`` whatever the spin (default: the best seed's
+        orientation at its frame's start); the base path, changed in place."""
+        rotation = self.best_seed.state.motion.rot0 if rotation is None else rotation
+        at = self.seed_time if at is None else at
+        self.path.load_rotation(axis_angle_to_matrix(-at * spin) @ rotation.to(spin), spin)
         return self.path
 
-    def poses(self, spin: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(F, T, 3, 3) rotations and (F, T, 3) positions of the frames on the seeds' path at ``spin``."""
+    def poses(self, spin: torch.Tensor, start: ShapedStart | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(F, T, 3, 3) rotations and (F, T, 3) positions of the frames on the seeds' path at
+        ``spin``, oriented and sized as ``start`` says (default: as the best seed)."""
         with torch.no_grad():
-            return self.oriented(spin)(self.frame_times, self.taus)
+            if start is None:
+                return self.oriented(spin)(self.frame_times, self.taus)
+            rotations, positions = self.oriented(spin, start.rotation, self.shape_time)(self.frame_times, self.taus)
+            return rotations, positions / self.scale_for(start)
+
+    @property
+    def shape_time(self) -> float:
+        """When a shaped start holds its orientation: the middle of the best seed's exposure."""
+        return self.seed_time + 0.5 * float(self.path.exposure().detach())
+
+    def scale_for(self, start: ShapedStart) -> float:
+        """How much nearer the seeds' path must bring an object for ``start.size_px`` pixels per
+        unit at the best seed's frame (positions divide by it)."""
+        with torch.no_grad():
+            t = torch.tensor([self.shape_time], device=self.device)
+            _, position = self.path(t, torch.zeros(1, device=self.device))
+        return start.size_px * float(position[0, 0, 2]) / self.path.camera.fy
+
+    def footprint(self) -> Footprint:
+        """The object's outline that the window's streaks show on the seeds' path."""
+        with torch.no_grad():
+            _, positions = self.path(self.frame_times, torch.tensor([0.0, 1.0], device=self.device))
+        starts, ends = [], []
+        for frame, p in zip(self.frames, positions, strict=True):
+            uv, _ = frame.crop.camera.project(p)
+            starts.append(uv[0])
+            ends.append(uv[1])
+        reference = next(k for k, f in enumerate(self.frames) if f.index == self.best_seed.index)
+        return footprint([f.crop for f in self.frames], torch.stack(starts), torch.stack(ends), reference)
 
 
 def start_window(
@@ -240,31 +327,41 @@ def start_window(
     )
 
 
-def window_candidate(window: WindowStart, prototype: str | None, spin: SpinScore | None = None) -> Optimisation:
+def window_candidate(window: WindowStart, start: ShapedStart | None, spin: SpinScore | None = None) -> Optimisation:
     """One candidate's optimisation on a copy of the window's path.
 
     Args:
-        prototype: None for the best seed's mesh and texture, else a fresh (grey) prototype.
-        spin: a searched spin and its texture, else the best seed's spin.
+        start: None for the best seed's mesh, texture and orientation, else a prototype
+            stretched, turned and sized to the window's footprint (the Laplacian then holds its
+            deformation smooth, not the mesh itself, so its corners and thin parts may stay).
+        spin: a searched spin and its texture, else the best seed's spin (and, for a shaped
+            start, a grey texture).
     """
     fit_config, config, seed = window.fit_config, window.config, window.best_seed
     learnt = (fit_config.deform, fit_config.learn_texture)
-    window.oriented(seed.state.motion.omega / window.exposure_fraction if spin is None else spin.spin)
-    path = copy.deepcopy(window.path)
-    if prototype is None:
+    turning = seed.state.motion.omega / window.exposure_fraction if spin is None else spin.spin
+    rest = None
+    if start is None:
+        window.oriented(turning)
         _, topology = load_prototype(seed.prototype)
         shape = ShapeParams(seed.state.vertices, topology, seed.state.texture.shape[-1], *learnt)
         texture = seed.state.texture
     else:
-        proto, topology = load_prototype(prototype)
-        shape = ShapeParams(proto, topology, fit_config.texture_size, *learnt)
+        window.oriented(turning, start.rotation, window.shape_time)
+        topology, rest = start.topology, start.vertices
+        shape = ShapeParams(start.vertices, topology, fit_config.texture_size, *learnt)
         texture = None
+    path = copy.deepcopy(window.path)
+    if start is not None:
+        with torch.no_grad():
+            path.anchors_raw[:, 2] += math.log(window.scale_for(start))
     if spin is not None:
         texture = upsample_texture(spin.texture.cpu(), shape.texture_logits.shape[-1])
     if texture is not None:
         seed_texture(shape, texture)
     shape.topology = topology.to(window.device)
     shape, path = shape.to(window.device), path.to(window.device)
+    rest = None if rest is None else rest.to(window.device)
     rotation = (path.quat0, path.spin_raw)
     groups = [
         {"params": [p for p in shape.parameters() if p.requires_grad]},
@@ -273,21 +370,89 @@ def window_candidate(window: WindowStart, prototype: str | None, spin: SpinScore
         {"params": [path.exposure_raw] if path.exposure_raw.requires_grad else [], "lr": config.lr_exposure},
     ]
     optimiser = torch.optim.Adam([g for g in groups if g["params"]], lr=fit_config.lr, fused=True)
-    return Optimisation(WindowObjective(window, shape, path), optimiser, config.iterations)
+    return Optimisation(WindowObjective(window, shape, path, rest), optimiser, config.iterations)
 
 
-def searched_spin(window: WindowStart, render_config: RenderConfig) -> SpinScore:
-    """The spin (and texture) that best explains the window's frames on the seeds' path, searched
-    on the best seed's prototype as it was before its single-frame fit deformed it to explain one
-    frame's blur: searched on the deformed mesh the spin came out 40 degrees off, on the
-    prototype 4 (tests/fitting/test_window.py's clip)."""
+def score_shape(
+    window: WindowStart, start: ShapedStart, spin: torch.Tensor, render_config: RenderConfig, texels: int | None = None
+) -> SpinScore:
+    """How well ``start`` at ``spin`` (3,) explains the window: the residual of its best coarse
+    texture (:func:`sfb_video.fitting.spin.score_spin`; ``texels`` a side, default
+    ``joint.spin_texture``), the same measure for every prototype."""
     config = window.config
-    vertices, topology = (x.to(window.device) for x in load_prototype(window.best_seed.prototype))
+    vertices, topology = start.vertices.to(window.device), start.topology.to(window.device)
     crops = [f.crop for f in window.frames]
-    args = (crops, vertices, topology, config.spin_texture, config.spin_smoothness, render_config)
+    size = config.spin_texture if texels is None else texels
+    args = (crops, vertices, topology, size, config.spin_smoothness, render_config)
+    return score_spin(spin.to(window.device), lambda s: window.poses(s, start), *args)
+
+
+def trial_shapes(
+    window: WindowStart, names: tuple[str, ...], render_config: RenderConfig
+) -> tuple[ShapedStart, SpinScore, dict[str, float]]:
+    """The prototype whose start at the window's footprint explains its frames best, each at
+    the spin a coarse search finds for it, its score there, and every prototype's residual
+    relative to the sphere's.
+
+    Each shape gets its own spin: a box, a pen or a ring explains the frames only once it turns
+    as the object did, and at one spin for all (the seeds') the trial chose a box for a ball and
+    a sphere for a box. A prototype other than the sphere must beat it by ``joint.shape_margin``:
+    a ball's streaks are explained about as well by a torus seen face on or a short capsule.
+    """
+    config = window.config
+    outline = window.footprint()
+    seed_spins = torch.stack([s.state.motion.omega / window.exposure_fraction for s in window.seeds]).float()
+    near = torch.cat((torch.zeros(1, 3), seed_spins)).to(window.device)
+    starts = {name: shaped_start(name, outline) for name in dict.fromkeys(("sphere", *names))}
+
+    def search(start: ShapedStart, grid: torch.Tensor, refine: tuple[float, ...]) -> SpinScore:
+        def score(spin: torch.Tensor) -> SpinScore:
+            return score_shape(window, start, spin, render_config, config.shape_texture)
+
+        return search_spin(grid, score, refine)[0]
+
+    scores = {name: search(start, near, ()) for name, start in starts.items()}
+    if config.spin_magnitudes and window.fit_config.max_rotation_deg > 0:
+        # Shapes far behind at the seeds' spins are not searched further: a capsule for a ball
+        # stays 5 times the sphere's residual at any spin.
+        best_near = min(s.residual for s in scores.values())
+        coarse = torch.cat((near, spin_grid(config.spin_magnitudes, config.shape_spin_axes)[1:].to(near)))
+        for name, start in starts.items():
+            if scores[name].residual < SHAPE_PRUNE * best_near or name == "sphere":
+                scores[name] = search(start, coarse, config.spin_refine[:1])
+    sphere = scores["sphere"].residual
+    best = min(scores, key=lambda n: scores[n].residual / (1.0 if n == "sphere" else 1 - config.shape_margin))
+    return starts[best], scores[best], {name: s.residual / max(sphere, 1e-12) for name, s in scores.items()}
+
+
+def searched_spin(window: WindowStart, start: ShapedStart, render_config: RenderConfig) -> SpinScore:
+    """The spin (and texture) that best explains the window's frames on the seeds' path, searched
+    on an undeformed prototype: searched on the single-frame fit's mesh, deformed to explain one
+    frame's blur, the spin came out 40 degrees off, on the prototype 4 (tests/fitting/test_window.py's clip)."""
+    config = window.config
     seed_spins = torch.stack([s.state.motion.omega / window.exposure_fraction for s in window.seeds]).float()
     grid = torch.cat((spin_grid(config.spin_magnitudes, config.spin_axes), seed_spins)).to(window.device)
-    return search_spin(grid, lambda s: score_spin(s, window.poses, *args), config.spin_refine)[0]
+    return search_spin(grid, lambda s: score_shape(window, start, s, render_config), config.spin_refine)[0]
+
+
+def refined_spin(window: WindowStart, start: ShapedStart, coarse: SpinScore, render_config: RenderConfig) -> SpinScore:
+    """The trial's spin for ``start`` refined by the pattern search's steps (``joint.spin_refine``),
+    its texture solved at the full search's size (``joint.spin_texture``)."""
+    config = window.config
+    grid = coarse.spin[None].to(window.device)
+    return search_spin(grid, lambda s: score_shape(window, start, s, render_config), config.spin_refine)[0]
+
+
+def seed_prototype(window: WindowStart) -> ShapedStart:
+    """The best seed's prototype, undeformed, in its orientation and at its size."""
+    vertices, topology = load_prototype(window.best_seed.prototype)
+    motion = window.best_seed.state.motion
+    rotation = axis_angle_to_matrix(0.5 * motion.omega) @ motion.rot0  # at the exposure's middle
+    with torch.no_grad():
+        t = torch.tensor([window.shape_time], device=window.device)
+        _, position = window.path(t, torch.zeros(1, device=window.device))
+    size_px = window.path.camera.fy / float(position[0, 0, 2])
+    return ShapedStart(window.best_seed.prototype, vertices, topology, rotation, size_px)
 
 
 def fit_window(
@@ -310,10 +475,11 @@ def fit_window(
         camera: the clip's full-frame camera.
         exposure_fraction: e, kept when ``config.learn_exposure`` is off; else learnt, starting
             from what the seeds measure (:func:`measured_exposure`) or, without, from this.
-        prototypes: fresh prototypes (grey, undeformed) that compete with the best seed's mesh
-            for the first ``config.trial_fraction`` of the steps; the lowest mean L_I goes on.
-            Without ``shape_from``, the spin searched on the best seed's prototype
-            (``config.spin_magnitudes``) starts one more competitor.
+        prototypes: the prototypes the footprint's trial chooses among (:func:`trial_shapes`);
+            the chosen one, with the spin searched on it (``config.spin_magnitudes``) and its
+            texture, competes with the best seed's mesh for the first ``config.trial_fraction``
+            of the steps, and the lowest mean L_I goes on. Without prototypes, the searched spin
+            on the best seed's prototype competes so. Only without ``shape_from``.
         shape_from: the seed whose mesh, texture and rotation the fit starts from (default: the
             seed with the lowest L_I); the previous window of a track hands its shape on so.
         on_step: called with (step, joint loss terms) after every step of the kept candidate
@@ -326,15 +492,28 @@ def fit_window(
     started = time.perf_counter()
     window = start_window(frames, seeds, camera, fit_config, config, render_config, exposure_fraction, shape_from)
     searching = shape_from is None and bool(config.spin_magnitudes) and fit_config.max_rotation_deg > 0
-    seed_key = f"seed:{window.best_seed.prototype}"
+    seed_key, shapes = f"seed:{window.best_seed.prototype}", {}
     with seeded(fit_config.seed), deterministic(window.device):
-        fits = {seed_key: window_candidate(window, None)} | {p: window_candidate(window, p) for p in prototypes}
-        if searching:
+        start, kind, spin = None, "spin", None
+        if prototypes and shape_from is None:
+            # The shape the streaks choose starts the fit alone: against the single-frame fits'
+            # mesh, fitted for hundreds of steps to each frame, no fresh start wins a short race
+            # (measured on `synthetic`: the seeds won every one, a box staying a torus).
+            start, spin, shapes = trial_shapes(window, prototypes, render_config)
+            kind = "shape"
+            if searching:
+                spin = refined_spin(window, start, spin, render_config)
+            fits = {}
+        else:
+            fits = {seed_key: window_candidate(window, None)}
+            if searching:
+                start = seed_prototype(window)
+                spin = searched_spin(window, start, render_config)
+        if start is not None:
             # On the seeds' path, not on the one of a trial: a trial from a wrong spin bends the
             # path to fit it, and the search then finds a wrong spin that explains the frames
             # better than the true one on the seeds' path (40 degrees off against 4).
-            spin = searched_spin(window, render_config)
-            fits[f"spin:{window.best_seed.prototype}"] = window_candidate(window, window.best_seed.prototype, spin)
+            fits[f"{kind}:{start.name}"] = window_candidate(window, start, spin)
         trial = max(1, round(config.trial_fraction * config.iterations)) if len(fits) > 1 else None
         key, trials = race(fits, trial, on_step)
     fit = fits[key]
@@ -354,4 +533,32 @@ def fit_window(
         seconds=time.perf_counter() - started,
         bounce=window.bounce,
         trials=trials,
+        shapes=shapes,
     )
+
+
+def refine_frames(
+    result: JointResult,
+    frames: list[WindowFrame],
+    fit_config: FitConfig,
+    render_config: RenderConfig,
+    pose: bool = False,
+) -> JointResult:
+    """Each frame refined from the joint fit: the shared mesh held (the window stays one
+    object), the frame's own texture (and, with ``pose``, its pose) fitted from the joint fit's,
+    as a warm start that stops on a plateau. One texture for six frames explains each of them
+    less well than its own would; the refined frame keeps the joint fit's shape (and place) and
+    takes back what the frame alone can tell (its shading; its exact pose).
+
+    Returns:
+        ``result`` with ``refined`` holding every frame's texture, motion and loss terms.
+    """
+    config = dataclasses.replace(fit_config, deform=False, learn_motion=pose)
+    refined = {}
+    for frame in frames:
+        motion = result.trajectory.frame_motion(frame.index)
+        warm = WarmStart(result.prototype, result.vertices, result.texture, motion, at_streak=False)
+        fit = fit_frame(frame.crop, config, render_config, warm, frame.masks)
+        state = fit.state
+        refined[frame.index] = Refined(state.texture.cpu(), state.motion.to("cpu"), fit.losses)
+    return dataclasses.replace(result, refined=refined)
