@@ -369,6 +369,7 @@ def _eval_sequences(args: argparse.Namespace) -> list:
 def cmd_eval(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from sfb_video.evaluation.montage import Montages
     from sfb_video.evaluation.runner import MODES, baseline_rows, run_sequence
     from sfb_video.evaluation.tables import TABLE, markdown, summarise, write_tables
 
@@ -411,6 +412,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
                 runs = []  # all fitted on Ray
             for done, (sequence, mode) in enumerate(runs, start=1):
                 bar.set_postfix(sequence=sequence.name, mode=mode)
+                montages = Montages()
                 rows += run_sequence(
                     sequence,
                     config,
@@ -420,13 +422,16 @@ def cmd_eval(args: argparse.Namespace) -> int:
                     on_frame=lambda _: bar.update(1),
                     masks=masks,
                     with_video=both,
+                    on_images=montages.add_frame,
                 )
+                montages.write(run.work / "montages")
                 left = "" if done == len(runs) else f"Incomplete: {done} of {len(runs)} sequence runs finished.\n\n"
                 write_tables(run.work, rows, left + note)
         run.finish()
     if not args.quiet:
         print(markdown(summarise(rows)))
-        print(f"wrote {printable(str(out))}/: table.md, sequences.csv, frames.csv, config.yaml")
+        pictures = ", montages/ (true sub-frames above ours)" if args.ray_address is None else ""
+        print(f"wrote {printable(str(out))}/: table.md, sequences.csv, frames.csv, config.yaml{pictures}")
     return 0
 
 

@@ -15,6 +15,7 @@ COMMAND_LINE = (
     "sfb_video.batch",
     "sfb_video.demo",
     "sfb_video.evaluation.runner",
+    "sfb_video.evaluation.montage",
     "sfb_video.evaluation.jobs",
     "sfb_video.evaluation.tables",
 )

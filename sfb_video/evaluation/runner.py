@@ -84,6 +84,16 @@ class FrameRow:
     """The frame's track (the pipeline's tracker: :class:`~sfb_video.stages.track.Tracker`), in
     the video and joint modes."""
 
+    @property
+    def windowed(self) -> float:
+        """In the joint mode, 1 where an accepted window stands for the frame, 0 where the frame
+        kept its single-frame fit (a rejected window); NaN in the other modes."""
+        return float(self.status == "joint") if self.mode == "joint" else math.nan
+
+
+ImageSink = Callable[["FrameRow", BenchmarkFrame, np.ndarray], None]
+"""Row, frame, our (N, h, w, 3) sub-frames on its tight box."""
+
 
 def _inputs(frame: BenchmarkFrame) -> FrameWithBackground:
     """The frame and its background as the pipeline's stages take them, (3, H, W) each."""
@@ -125,6 +135,12 @@ def estimate_subframes(result: FrameResult, frame: BenchmarkFrame, camera: Pinho
     return render_estimate(result.state, camera, frame.box, frame.background, len(frame.centres), config.render)
 
 
+def true_subframes(frame: BenchmarkFrame) -> np.ndarray:
+    """The (N, h, w, 3) true sub-frames on the frame's tight box."""
+    x, y, w, h = frame.box
+    return frame.subframes[:, y : y + h, x : x + w]
+
+
 def score_frame(
     frame: BenchmarkFrame,
     result: FrameResult,
@@ -133,8 +149,7 @@ def score_frame(
     clip: SyntheticClip | None,
 ) -> dict[str, float]:
     """The benchmark's measures of one fitted frame, and 3D errors when ``clip`` holds the truth."""
-    x, y, w, h = frame.box
-    truth = frame.subframes[:, y : y + h, x : x + w]
+    truth = true_subframes(frame)
     truth_3d = None if clip is None else (clip.truth[frame.index].motion, clip.scene.mesh)
     return score_estimate(result.state, estimate, truth, camera, frame.centres, frame.radius, truth_3d)[0]
 
@@ -177,6 +192,7 @@ def run_sequence(
     masks: MaskSource | None = None,
     with_video: bool = False,
     first: int = 0,
+    on_images: ImageSink | None = None,
 ) -> list[FrameRow]:
     """Fit and score the frames of ``sequence`` in ``mode`` (one of ``MODES``).
 
@@ -188,6 +204,8 @@ def run_sequence(
             rows (the same fits: one run gives both modes).
         max_frames: stop after this many frames (the first ones), for quick looks.
         on_frame: called with each frame's row as soon as it is scored (progress).
+        on_images: called with each scored frame's row, the frame and our (N, h, w, 3)
+            sub-frames on its tight box (for montages).
     """
     if first and mode != "per-frame":
         raise ValueError("only the per-frame mode can start in the middle of a sequence")
@@ -238,7 +256,8 @@ def run_sequence(
                 fitted[frame.index] = (frame, result, seconds)
             if mode == "joint" and not with_video:
                 continue
-            scores = score_frame(frame, result, estimate_subframes(result, frame, camera, config), camera, clip)
+            estimate = estimate_subframes(result, frame, camera, config)
+            scores = score_frame(frame, result, estimate, camera, clip)
             row = FrameRow(
                 sequence.dataset,
                 sequence.name,
@@ -250,6 +269,8 @@ def run_sequence(
                 track=track,
                 **scores,
             )
+            if on_images is not None:
+                on_images(row, frame, estimate)
         rows.append(row)
         if on_frame is not None:
             on_frame(row)
@@ -262,7 +283,7 @@ def run_sequence(
             video_rows.append(dataclasses.replace(row, mode="video"))
             if on_frame is not None:
                 on_frame(video_rows[-1])
-    joint_rows = _joint_rows(sequence, statuses, fitted, unfitted, camera, config, device, clip, on_frame)
+    joint_rows = _joint_rows(sequence, statuses, fitted, unfitted, camera, config, device, clip, on_frame, on_images)
     return sorted(video_rows, key=lambda r: r.frame) + joint_rows
 
 
@@ -283,6 +304,7 @@ def _joint_rows(
     device: torch.device,
     clip: SyntheticClip | None,
     on_frame: Callable[[FrameRow], None] | None,
+    on_images: ImageSink | None = None,
 ) -> list[FrameRow]:
     """Fit the windows of the warm-started fits jointly and score every frame as the joint fit
     shows it; a frame's time is its single-frame fit's plus its share of each window's."""
@@ -326,4 +348,6 @@ def _joint_rows(
         rows.append(row)
         if on_frame is not None:
             on_frame(row)
+        if on_images is not None:
+            on_images(row, frame, estimate)
     return sorted(rows, key=lambda r: r.frame)

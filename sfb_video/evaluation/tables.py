@@ -28,6 +28,7 @@ MEASURES = {
     "translation_err": ("transl. err", "{:.2f}"),
     "rotation_err_deg": ("rot. err (deg)", "{:.1f}"),
     "mesh_err": ("mesh err", "{:.3f}"),
+    "windowed": ("by a window", "{:.2f}"),
     "seconds": ("s / frame", "{:.1f}"),
 }
 """Column key -> (Markdown header, format)."""

@@ -8,6 +8,8 @@ from pathlib import Path
 import pytest
 
 from sfb_video.cli import main
+from sfb_video.evaluation.montage import GAP_PX, TILE_PX
+from sfb_video.imageio import read_image
 from tests.evaluation.fmo_fixture import write_fixture
 
 QUICK = ["--config", "fast", "--set", "fit.iterations=60", "--set", "fit.warm_iterations=30", "--device", "cpu"]
@@ -113,3 +115,16 @@ def test_bad_input_is_one_line_and_exit_2(
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_each_sequence_and_mode_gets_a_montage_of_the_truth_above_ours(evaluated: tuple[Path, Path]) -> None:
+    _, out = evaluated
+    sequences = {r["sequence"] for r in _rows(out / "sequences.csv")} - {"total"}
+    modes = ("per-frame", "video", "joint")
+    assert sorted(p.name for p in (out / "montages").iterdir()) == sorted(
+        f"{s}_{m}.png" for s in sequences for m in modes
+    )
+    picture = read_image(out / "montages" / f"{sorted(sequences)[0]}_joint.png")
+    # Two frames, each a row of the truth's sub-frames above a row of ours, a gap between frames.
+    assert picture.shape[1] == 2 * 2 * TILE_PX + 3 * GAP_PX
+    assert float((picture[:, :TILE_PX] - picture[:, TILE_PX : 2 * TILE_PX]).abs().mean()) > 0  # ours differ
