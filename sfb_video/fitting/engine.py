@@ -17,7 +17,7 @@ from typing import Any, Protocol
 
 import torch
 
-from sfb_video.errors import DivergenceError
+from sfb_video.errors import DivergenceError, PoseError
 from sfb_video.model.shape import ShapeParams
 
 StepCallback = Callable[[int, dict[str, float]], None]
@@ -101,13 +101,20 @@ class Optimisation:
 
     def run(self, steps: int, on_step: StepCallback | None = None) -> None:
         """Run up to ``steps`` more steps: fewer at the end of its iterations, on a plateau, on a
-        non-finite loss (the best parameters so far are kept: a NaN step would only spoil them)
-        or when nothing is left to optimise. A stopped candidate stays stopped."""
+        non-finite loss or a step that moved the mesh behind the camera (the best parameters so
+        far are kept: such a step would only spoil them) or when nothing is left to optimise. A
+        stopped candidate stays stopped."""
         for _ in range(min(steps, self.iterations - self.step)):
             if self.done:
                 return
             self.optimiser.zero_grad(set_to_none=True)
-            step = self.objective(self.step / self.iterations)
+            try:
+                step = self.objective(self.step / self.iterations)
+            except PoseError:
+                # Adam moved the path through the camera (a shaped start brought near it on
+                # circle_fast.avi): the candidate has diverged, as on a NaN.
+                self.done = True
+                return
             if not torch.isfinite(step.total):
                 self.done = True
                 return

@@ -45,7 +45,7 @@ import torch
 
 from sfb_video.config import FitConfig, JointConfig, RenderConfig
 from sfb_video.crop import Crop
-from sfb_video.errors import DivergenceError
+from sfb_video.errors import DivergenceError, PoseError
 from sfb_video.fitting.engine import (
     Optimisation,
     Step,
@@ -384,7 +384,11 @@ def score_shape(
     crops = [f.crop for f in window.frames]
     size = config.spin_texture if texels is None else texels
     args = (crops, vertices, topology, size, config.spin_smoothness, render_config)
-    return score_spin(spin.to(window.device), lambda s: window.poses(s, start), *args)
+    try:
+        return score_spin(spin.to(window.device), lambda s: window.poses(s, start), *args)
+    except PoseError:
+        # Sized to the footprint, the shape would reach behind the camera: it explains nothing.
+        return SpinScore(spin, math.inf, torch.zeros(3, size, size, device=window.device))
 
 
 def trial_shapes(

@@ -13,7 +13,7 @@ import torch
 
 from sfb_video.config import load_config
 from sfb_video.crop import make_crop
-from sfb_video.errors import DivergenceError
+from sfb_video.errors import DivergenceError, PoseError
 from sfb_video.evaluation.synthetic import synthetic_crop
 from sfb_video.fitting.engine import Optimisation, Step, race, seeded
 from sfb_video.fitting.frame import WarmStart, fit_frame
@@ -102,15 +102,17 @@ def test_a_window_race_with_a_shape_trial_and_a_searched_spin_gives_the_recorded
 class _Quadratic:
     """(x - target)^2 as L_I, NaN from step ``nan_from`` on."""
 
-    def __init__(self, target: float, nan_from: int | None = None) -> None:
+    def __init__(self, target: float, nan_from: int | None = None, behind_from: int | None = None) -> None:
         self.x = torch.nn.Parameter(torch.zeros(()))
         self.module = torch.nn.Module()
         self.module.x = self.x
         self.modules = (self.module,)
-        self.target, self.nan_from, self.calls = target, nan_from, 0
+        self.target, self.nan_from, self.behind_from, self.calls = target, nan_from, behind_from, 0
 
     def __call__(self, progress: float) -> Step:
         self.calls += 1
+        if self.behind_from is not None and self.calls > self.behind_from:
+            raise PoseError("the mesh reaches behind the camera")
         loss = (self.x - self.target) ** 2
         if self.nan_from is not None and self.calls > self.nan_from:
             loss = loss * float("nan")
@@ -130,6 +132,16 @@ def test_a_non_finite_step_stops_the_candidate_for_good_and_keeps_its_best() -> 
     best = fit.restore()
     assert best.record["image"] == min(r["image"] for r in fit.curve)
     assert float(objective.x.detach()) == pytest.approx(float(best.states[0]["x"]))
+
+
+def test_a_step_behind_the_camera_stops_the_candidate_and_keeps_its_best() -> None:
+    objective = _Quadratic(1.0, behind_from=3)
+    fit = _optimisation(objective)
+    fit.run(10)
+    assert fit.done and len(fit.curve) == 3
+    assert fit.restore().record["image"] == min(r["image"] for r in fit.curve)
+    with pytest.raises(DivergenceError):  # behind from the first step: nothing to keep
+        race({"a": _optimisation(_Quadratic(1.0, behind_from=0))}, None)
 
 
 def test_the_race_lets_the_leader_go_on_and_fails_only_when_every_candidate_diverged() -> None:
