@@ -230,10 +230,10 @@ class JointConfig(_Checked):
     )
     """The shapes a track's first window chooses among, each stretched, turned and sized to the
     footprint its streaks show (:mod:`sfb_video.fitting.shapes`) and scored by its best coarse
-    texture; the chosen one races the single-frame fits' mesh. Empty: keep the seeds' mesh."""
+    texture; the chosen one starts the window's fit alone. Empty: keep the seeds' mesh."""
     shape_spin_axes: int = bounded(8, ge=1)
     """Axes of the coarse spin grid (at ``spin_magnitudes``) that each shape of the trial is
-    scored at; the chosen shape's spin is then searched on the full grid."""
+    scored at; the chosen shape's spin is then refined by ``spin_refine``."""
     shape_texture: int = bounded(16, ge=2)
     """Texels a side of the shape trial's texture: coarse, so that the outline decides."""
     shape_margin: float = bounded(0.05, ge=0, le=0.5)

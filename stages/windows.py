@@ -7,7 +7,7 @@ clip is streamed once more and each window is fitted as soon as its last frame h
 from crops rebuilt exactly as the single-frame fits made them, so memory holds one window's
 crops whatever the clip's length. A window's fit is saved into the run folder when done: the
 unit a resumed run reuses. The first window of a track chooses a shape among
-``joint.prototypes`` from its streaks and races it against the single-frame fits' mesh; each
+``joint.prototypes`` from its streaks and starts its fit from that shape alone; each
 later window starts from its predecessor's mesh, texture and poses on the frames they share, so
 a track keeps one shape. Each window's frames are then refined from its fit (``joint.refine``).
 

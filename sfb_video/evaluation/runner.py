@@ -163,7 +163,7 @@ def baseline_rows(sequence: Sequence, max_frames: int | None = None) -> list[Fra
         if max_frames is not None and position >= max_frames:
             break
         x, y, w, h = frame.box
-        truth = frame.subframes[:, y : y + h, x : x + w]
+        truth = true_subframes(frame)
         for mode, still in zip(BASELINES, (frame.image, frame.background), strict=True):
             estimate = np.broadcast_to(still[y : y + h, x : x + w], truth.shape)
             psnr, ssim = metrics.psnr(estimate, truth), metrics.ssim(estimate, truth)

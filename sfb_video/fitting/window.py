@@ -16,9 +16,11 @@ not on one frame: the motion model (a bounce where one smooth path leaves the se
 far apart, :func:`~sfb_video.fitting.path.choose_motion`), and the start. On a track's first
 window the footprint its streaks show once the travel is known chooses a shape
 (:func:`trial_shapes`: round, elongated, boxy or flat prototypes, each stretched, turned and
-sized to it, each at its own best spin, scored by the best coarse texture); that shape, with
-the spin searched on it (:mod:`sfb_video.fitting.spin`), races the seeded mesh for the first
-part of the fit, and the lowest joint L_I goes on (:func:`sfb_video.fitting.engine.race`).
+sized to it, each at its own best spin, scored by the best coarse texture); that shape, its
+spin refined (:mod:`sfb_video.fitting.spin`), starts the fit alone. Without a trial (a later
+window, or ``joint.prototypes`` empty) the seeded mesh races the seed's prototype at a searched
+spin for the first part of the fit, and the lowest joint L_I goes on
+(:func:`sfb_video.fitting.engine.race`).
 The Laplacian's weight falls over the fit (``joint.laplacian_end``), and on a shaped start it
 holds the deformation smooth, not the mesh, so corners and thin parts may form and stay.
 
@@ -36,6 +38,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import math
 import statistics
 import time
@@ -122,9 +125,9 @@ class JointResult:
         curve: the joint loss terms at every step.
         seconds: wall time.
         bounce: the window time of the bounce model's break, else None.
-        trials: per candidate raced (``seed:<prototype>``; ``shape:<prototype>``, the shape
-            that the footprint's trial chose; ``spin:<prototype>``, the seed's prototype with a
-            searched spin), its mean L_I after the trial steps.
+        trials: per candidate raced (``seed:<prototype>``; ``spin:<prototype>``, the seed's
+            prototype with a searched spin), its mean L_I after the trial steps; empty when one
+            candidate ran (``shape:<prototype>``, the shape that the footprint's trial chose).
         shapes: per prototype of the footprint's trial, its coarse texture's residual over the
             sphere's (:func:`trial_shapes`).
         refined: per frame refined after the fit, its own texture and pose (:func:`refine_frames`).
@@ -260,13 +263,22 @@ class WindowStart:
         """When a shaped start holds its orientation: the middle of the best seed's exposure."""
         return self.seed_time + 0.5 * float(self.path.exposure().detach())
 
-    def scale_for(self, start: ShapedStart) -> float:
-        """How much nearer the seeds' path must bring an object for ``start.size_px`` pixels per
-        unit at the best seed's frame (positions divide by it)."""
+    @property
+    def seed_spins(self) -> torch.Tensor:
+        """(S, 3) the seeds' spins per frame interval."""
+        return torch.stack([s.state.motion.omega / self.exposure_fraction for s in self.seeds]).float()
+
+    def px_per_unit(self) -> float:
+        """The apparent size of one object unit on the seeds' path at :attr:`shape_time`, in pixels."""
         with torch.no_grad():
             t = torch.tensor([self.shape_time], device=self.device)
             _, position = self.path(t, torch.zeros(1, device=self.device))
-        return start.size_px * float(position[0, 0, 2]) / self.path.camera.fy
+        return self.path.camera.fy / float(position[0, 0, 2])
+
+    def scale_for(self, start: ShapedStart) -> float:
+        """How much nearer the seeds' path must bring an object for ``start.size_px`` pixels per
+        unit at the best seed's frame (positions divide by it)."""
+        return start.size_px / self.px_per_unit()
 
     def footprint(self) -> Footprint:
         """The object's outline that the window's streaks show on the seeds' path."""
@@ -405,8 +417,7 @@ def trial_shapes(
     """
     config = window.config
     outline = window.footprint()
-    seed_spins = torch.stack([s.state.motion.omega / window.exposure_fraction for s in window.seeds]).float()
-    near = torch.cat((torch.zeros(1, 3), seed_spins)).to(window.device)
+    near = torch.cat((torch.zeros(1, 3), window.seed_spins)).to(window.device)
     starts = {name: shaped_start(name, outline) for name in dict.fromkeys(("sphere", *names))}
 
     def search(start: ShapedStart, grid: torch.Tensor, refine: tuple[float, ...]) -> SpinScore:
@@ -429,22 +440,23 @@ def trial_shapes(
     return starts[best], scores[best], {name: s.residual / max(sphere, 1e-12) for name, s in scores.items()}
 
 
-def searched_spin(window: WindowStart, start: ShapedStart, render_config: RenderConfig) -> SpinScore:
+def searched_spin(
+    window: WindowStart, start: ShapedStart, render_config: RenderConfig, around: SpinScore | None = None
+) -> SpinScore:
     """The spin (and texture) that best explains the window's frames on the seeds' path, searched
     on an undeformed prototype: searched on the single-frame fit's mesh, deformed to explain one
-    frame's blur, the spin came out 40 degrees off, on the prototype 4 (tests/fitting/test_window.py's clip)."""
-    config = window.config
-    seed_spins = torch.stack([s.state.motion.omega / window.exposure_fraction for s in window.seeds]).float()
-    grid = torch.cat((spin_grid(config.spin_magnitudes, config.spin_axes), seed_spins)).to(window.device)
-    return search_spin(grid, lambda s: score_shape(window, start, s, render_config), config.spin_refine)[0]
+    frame's blur, the spin came out 40 degrees off, on the prototype 4 (tests/fitting/test_window.py's clip).
 
-
-def refined_spin(window: WindowStart, start: ShapedStart, coarse: SpinScore, render_config: RenderConfig) -> SpinScore:
-    """The trial's spin for ``start`` refined by the pattern search's steps (``joint.spin_refine``),
-    its texture solved at the full search's size (``joint.spin_texture``)."""
+    The search scores the grid of ``joint.spin_magnitudes`` and the seeds' spins, or only
+    ``around`` (the shape trial's spin), then refines the best by ``joint.spin_refine``; the
+    texture is solved at ``joint.spin_texture``."""
     config = window.config
-    grid = coarse.spin[None].to(window.device)
-    return search_spin(grid, lambda s: score_shape(window, start, s, render_config), config.spin_refine)[0]
+    if around is None:
+        grid = torch.cat((spin_grid(config.spin_magnitudes, config.spin_axes), window.seed_spins))
+    else:
+        grid = around.spin[None]
+    score = functools.partial(score_shape, window, start, render_config=render_config)
+    return search_spin(grid.to(window.device), score, config.spin_refine)[0]
 
 
 def seed_prototype(window: WindowStart) -> ShapedStart:
@@ -452,11 +464,7 @@ def seed_prototype(window: WindowStart) -> ShapedStart:
     vertices, topology = load_prototype(window.best_seed.prototype)
     motion = window.best_seed.state.motion
     rotation = axis_angle_to_matrix(0.5 * motion.omega) @ motion.rot0  # at the exposure's middle
-    with torch.no_grad():
-        t = torch.tensor([window.shape_time], device=window.device)
-        _, position = window.path(t, torch.zeros(1, device=window.device))
-    size_px = window.path.camera.fy / float(position[0, 0, 2])
-    return ShapedStart(window.best_seed.prototype, vertices, topology, rotation, size_px)
+    return ShapedStart(window.best_seed.prototype, vertices, topology, rotation, window.px_per_unit())
 
 
 def fit_window(
@@ -479,11 +487,12 @@ def fit_window(
         camera: the clip's full-frame camera.
         exposure_fraction: e, kept when ``config.learn_exposure`` is off; else learnt, starting
             from what the seeds measure (:func:`measured_exposure`) or, without, from this.
-        prototypes: the prototypes the footprint's trial chooses among (:func:`trial_shapes`);
-            the chosen one, with the spin searched on it (``config.spin_magnitudes``) and its
-            texture, competes with the best seed's mesh for the first ``config.trial_fraction``
-            of the steps, and the lowest mean L_I goes on. Without prototypes, the searched spin
-            on the best seed's prototype competes so. Only without ``shape_from``.
+        prototypes: the prototypes the footprint's trial chooses among (:func:`trial_shapes`),
+            without ``shape_from`` only; the chosen one, its spin refined (``config.spin_refine``)
+            and with its texture, starts the fit alone. Without a trial, the best seed's
+            prototype at the spin searched on it (``config.spin_magnitudes``) competes with the
+            best seed's mesh for the first ``config.trial_fraction`` of the steps, and the
+            lowest mean L_I goes on.
         shape_from: the seed whose mesh, texture and rotation the fit starts from (default: the
             seed with the lowest L_I); the previous window of a track hands its shape on so.
         on_step: called with (step, joint loss terms) after every step of the kept candidate
@@ -496,7 +505,7 @@ def fit_window(
     started = time.perf_counter()
     window = start_window(frames, seeds, camera, fit_config, config, render_config, exposure_fraction, shape_from)
     searching = shape_from is None and bool(config.spin_magnitudes) and fit_config.max_rotation_deg > 0
-    seed_key, shapes = f"seed:{window.best_seed.prototype}", {}
+    shapes: dict[str, float] = {}
     with seeded(fit_config.seed), deterministic(window.device):
         start, kind, spin = None, "spin", None
         if prototypes and shape_from is None:
@@ -506,10 +515,10 @@ def fit_window(
             start, spin, shapes = trial_shapes(window, prototypes, render_config)
             kind = "shape"
             if searching:
-                spin = refined_spin(window, start, spin, render_config)
+                spin = searched_spin(window, start, render_config, around=spin)
             fits = {}
         else:
-            fits = {seed_key: window_candidate(window, None)}
+            fits = {f"seed:{window.best_seed.prototype}": window_candidate(window, None)}
             if searching:
                 start = seed_prototype(window)
                 spin = searched_spin(window, start, render_config)
