@@ -75,6 +75,9 @@ def frame_footprint(crop: Crop, start: torch.Tensor, end: torch.Tensor) -> tuple
     level = difference.median()
     spread = (difference - level).abs().median()
     weight = (difference - level - 4 * 1.4826 * spread).clamp_min(0)
+    if not bool((weight > 0).any()):
+        # The whole streak within the noise: the object's mask, each pixel alike, is all there is.
+        weight = crop.object_mask.to(difference.dtype)
     ys, xs = torch.nonzero(weight > 0, as_tuple=True)
     w = weight[ys, xs].double()
     pts = torch.stack((xs, ys), -1).double()

@@ -61,6 +61,16 @@ def test_the_travel_is_taken_off_the_streak_length(angle: float) -> None:
     assert float(direction @ torch.tensor([math.cos(math.radians(angle)), math.sin(math.radians(angle))])) > 0.999
 
 
+def test_a_streak_lost_in_the_noise_is_measured_on_its_mask() -> None:
+    # Constant noise-free crops: nothing stands above the noise floor, and the mask still
+    # holds the 70 x 12 streak; the footprint must come from it, not be NaN.
+    crop = _streak(30, 12, 0.0, 40.0)
+    flat = SimpleNamespace(image=crop.background.clone(), background=crop.background, object_mask=crop.object_mask)
+    along, across, _ = frame_footprint(flat, *crop.ends)
+    assert math.isfinite(along) and math.isfinite(across)
+    assert across == pytest.approx(12.0, rel=0.15)
+
+
 def test_a_pen_moving_across_itself_lies_across_its_streak() -> None:
     # A pen 40 px long and 6 wide lying across its motion, moved 20 px.
     crop = _streak(40, 6, 0.0, 20.0, across_motion=True)
