@@ -123,6 +123,10 @@ class CropConfig(_Checked):
     SfB reference's test). It finds the box of ``sfb-video fit``, starts the motion, normalises
     L_I and is the mask D of L_D. Not the detector's test (``detect.threshold``, on the L2 norm):
     this one is looser, because a mask that misses a streak's faint parts rewards shrinking."""
+    region_noise: float = bounded(6.0, ge=0)
+    """The object's footprint is read off the region grown into the streak's faint parts: pixels
+    whose smoothed difference stands this many noise spreads above the crop's median, touching
+    it (:func:`sfb_video.crop.object_region`). 0 keeps the threshold alone."""
     defmo_margin: float = bounded(1.0, ge=0)
     """Growth on each side of the window DeFMO sees, as a fraction of the box's shorter side: two
     object radii, as the SfB reference crops for DeFMO."""

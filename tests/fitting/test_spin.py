@@ -46,7 +46,8 @@ def _crops(texture: torch.Tensor, spin: torch.Tensor) -> list[Crop]:
     crops = []
     for rotations, positions in zip(*_poses(spin), strict=True):
         image, _ = renderer.blurred(pose_vertices(vertices, rotations, positions), topology, texture, background)
-        crops.append(Crop((0, 0, 64, 48), CAMERA, image, background, torch.ones(48, 64, dtype=torch.bool)))
+        mask = torch.ones(48, 64, dtype=torch.bool)
+        crops.append(Crop((0, 0, 64, 48), CAMERA, image, background, mask, mask))
     return crops
 
 
