@@ -1,10 +1,11 @@
 """The shape a window starts from, read off its streaks once the path and exposure are known.
 
-A streak is the object's footprint swept along its travel within the exposure. With the path
+A streak is the object's outline swept along its travel within the exposure. With the path
 fitted to the seeds (:func:`sfb_video.fitting.window.start_window`) the travel is known, so the
-object's extent along the motion is the streak's length minus the travel, and across it the
-streak's width (:func:`footprint`). A long footprint is a pen or a key lying along it (or across,
-when the width is the larger), a round one a ball, a box or a disc seen face on.
+sweep can be undone: the streak's region eroded by the travel's segment is the outline, however
+the object lies to its motion (:func:`unswept`, :func:`footprint`). A long outline is a pen or
+a key, a round one a ball, a box or a disc seen face on; an outline that is round in every frame
+gives a long or flat prototype no evidence over the ball (:meth:`Footprint.shows`).
 
 Each prototype is then stretched to that footprint, turned so that its long axis lies along it
 (a disc tilted so that its outline's short side matches), and sized so that its long side covers
@@ -20,8 +21,9 @@ import math
 import statistics
 from dataclasses import dataclass
 
+import cv2
+import numpy as np
 import torch
-import torch.nn.functional as F
 
 from sfb_video.crop import Crop
 from sfb_video.geometry.mesh import MeshTopology, normalize_vertices
@@ -32,81 +34,137 @@ MAX_ASPECT = 8.0
 """The longest footprint taken from a streak: beyond it the travel ate the streak's length (an
 exposure taken too long), and the measure says no more than "thin"."""
 
+ELONGATED = 1.4
+"""A footprint whose frames' outlines are at least this long to one, in the median, shows a long
+object: below it a capsule has no evidence over a ball (a ball's outline measures 1.0-1.25)."""
+
+EDGE_ON = 1.8
+"""A frame whose outline is at least this long to one shows a flat object near its edge: a disc
+or ring seen face on in every frame draws a ball's outline, and the ball is the simpler answer."""
+
+NEEDS = {"capsule": "long", "disc": "flat", "torus": "flat"}
+"""The prototypes that need the footprint's evidence (:meth:`Footprint.shows`) to enter a trial."""
+
 
 @dataclass(frozen=True)
 class Footprint:
     """The object's outline in the image, as the window's streaks show it.
 
     Attributes:
-        long_px, short_px: its longer and shorter extent in pixels (the medians over frames).
-        axis: (2,) unit image direction of the long side in the reference frame's crop.
+        long_px, short_px: its longer and shorter extent in full-frame pixels (the medians
+            over frames of each frame's longer and shorter side: a spinning pen lies along its
+            motion in one frame and across it in the next).
+        axis: (2,) unit image direction of the long side in the reference frame.
+        aspects: each frame's outline, long to short.
     """
 
     long_px: float
     short_px: float
     axis: torch.Tensor
+    aspects: tuple[float, ...] = ()
 
     @property
     def aspect(self) -> float:
         return self.long_px / self.short_px
 
+    def shows(self, evidence: str) -> bool:
+        """Whether the frames show a "long" object (median aspect >= :data:`ELONGATED`) or a
+        "flat" one (some frame at least :data:`EDGE_ON`)."""
+        if evidence == "long":
+            return statistics.median(self.aspects or (self.aspect,)) >= ELONGATED
+        return max(self.aspects or (self.aspect,)) >= EDGE_ON
+
+
+def _filled(mask: torch.Tensor) -> torch.Tensor:
+    """(H, W) bool ``mask`` with its holes filled: what the border cannot reach is inside."""
+    flooded = np.pad(mask.cpu().numpy().astype(np.uint8), 1)
+    cv2.floodFill(flooded, None, (0, 0), 1)
+    return mask | torch.from_numpy(flooded[1:-1, 1:-1] == 0).to(mask.device)
+
+
+def unswept(mask: torch.Tensor, travel: torch.Tensor) -> torch.Tensor:
+    """The object's outline whose sweep along ``travel`` (2,) px made the streak ``mask`` (H, W).
+
+    A streak is the outline swept along the travel T, a Minkowski sum with a segment; eroding
+    the streak by that segment undoes it (exactly for a convex outline), whatever way the
+    object lies to its motion. The outline is placed where the exposure starts.
+    """
+    steps = max(1, math.ceil(float(travel.norm())))
+    height, width = mask.shape
+    out = mask.clone()
+    for k in range(1, steps + 1):
+        dx, dy = (round(float(v) * k / steps) for v in travel)
+        shifted = torch.zeros_like(mask)
+        # shifted(p) = mask(p + (dx, dy)), False beyond the crop.
+        ys, xs = slice(max(0, -dy), min(height, height - dy)), slice(max(0, -dx), min(width, width - dx))
+        shifted[ys, xs] = mask[max(0, dy) : min(height, height + dy), max(0, dx) : min(width, width + dx)]
+        out &= shifted
+    return out
+
+
+def _extents(points: torch.Tensor, axis: torch.Tensor) -> tuple[float, float]:
+    """Spans (pixels, a pixel included) of (P, 2) ``points`` along ``axis`` (2,) and across it."""
+    normal = torch.stack((-axis[1], axis[0]))
+    along, across = points @ axis, points @ normal
+    return float(along.max() - along.min()) + 1.0, float(across.max() - across.min()) + 1.0
+
 
 def frame_footprint(crop: Crop, start: torch.Tensor, end: torch.Tensor) -> tuple[float, float, torch.Tensor]:
-    """One frame's object extent along and across its motion, and the motion's direction.
+    """One frame's object outline: its long and short side, and the (2,) direction of the long one.
 
-    From second moments of the difference from the background, not from a thresholded mask: a
-    thin or faint object covers each pixel of its streak so briefly that a threshold keeps a
-    fraction of it, and the ends of every streak, where coverage ramps up, fall below it. The
-    streak is the object's outline swept by a box of the travel T, so along the motion the
-    variances add: the object's own is the streak's less T^2 / 12. Extents are box-equivalent,
-    sqrt(12 var): a bar's length, 0.87 of a disc's diameter.
+    From the crop's streak, its object region grown into the faint parts
+    (:func:`sfb_video.crop.object_region`), its holes filled and the sweep undone
+    (:func:`unswept`); the outline's sides are its spans along and across its principal axis.
+    Where nothing survives the erosion (a streak broken by an occluder, or smeared wider by a
+    spin), the region's spans along and across the motion stand in, the travel taken off the
+    first. Extents, not moments: moments of the difference weigh the pixels by contrast, and a
+    striped grey pen shows contrast at one end only.
 
     Args:
-        crop: the frame's crop; its difference from the background, smoothed, is weighed above
-            the crop's noise.
+        crop: the frame's crop.
         start, end: (2,) the object centre's image positions at the exposure's ends (crop pixels).
 
     Returns:
-        the extent along the motion (at least a pixel), the extent across it, and the (2,) unit
-        direction of the motion.
+        the long side, the short side (each at least a pixel) and the long side's direction.
     """
-    difference = F.avg_pool2d((crop.image - crop.background).abs().sum(0)[None, None], 3, 1, 1, False)[0, 0]
-    # Most of a crop is background: its median and spread are the noise, which weighs nothing.
-    level = difference.median()
-    spread = (difference - level).abs().median()
-    weight = (difference - level - 4 * 1.4826 * spread).clamp_min(0)
-    if not bool((weight > 0).any()):
-        # The whole streak within the noise: the object's mask, each pixel alike, is all there is.
-        weight = crop.object_mask.to(difference.dtype)
-    ys, xs = torch.nonzero(weight > 0, as_tuple=True)
-    w = weight[ys, xs].double()
-    pts = torch.stack((xs, ys), -1).double()
-    centre = (w[:, None] * pts).sum(0) / w.sum()
-    cov = ((pts - centre).T * w) @ (pts - centre) / w.sum()
     travel = (end - start).double()
-    # With no travel to take off, the streak's own principal axis is the motion's best guess.
-    direction = torch.linalg.eigh(cov)[1][:, -1] if float(travel.norm()) < 1.0 else travel / travel.norm()
-    normal = torch.stack((-direction[1], direction[0]))
-    var_along = float(direction @ cov @ direction) - float(travel.norm()) ** 2 / 12
-    along = math.sqrt(max(12 * var_along, 1.0))
-    return along, math.sqrt(max(12 * float(normal @ cov @ normal), 1.0)), direction.float()
+    direction = travel / travel.norm().clamp_min(1e-9)
+    region = _filled(crop.streak)
+    outline = unswept(region, travel)
+    ys, xs = torch.nonzero(outline if int(outline.sum()) >= 2 else region, as_tuple=True)
+    if len(xs) < 2:
+        return 1.0, 1.0, direction.float()
+    pts = torch.stack((xs, ys), -1).double()
+    if int(outline.sum()) >= 2:
+        centred = pts - pts.mean(0)
+        axis = torch.linalg.eigh(centred.T @ centred)[1][:, -1]
+        long_, short = _extents(pts, axis)
+    else:
+        along, across = _extents(pts, direction)
+        along = max(along - float(travel.norm()), 1.0)
+        axis = direction if along >= across else torch.stack((-direction[1], direction[0]))
+        long_, short = max(along, across), min(along, across)
+    return long_, short, axis.float()
 
 
-def footprint(crops: list[Crop], starts: torch.Tensor, ends: torch.Tensor, reference: int) -> Footprint:
-    """The window's footprint: the medians of its frames' extents, oriented as in frame ``reference``.
+def footprint(crops: list[Crop], starts: torch.Tensor, ends: torch.Tensor, reference: int, fy: float) -> Footprint:
+    """The window's footprint in full-frame pixels, oriented as in frame ``reference``.
 
     Args:
-        crops: the window's crops; starts, ends: (F, 2) each frame's centre at the exposure's ends.
-        reference: the frame whose motion direction orients the long axis.
+        crops: the window's crops; starts, ends: (F, 2) each frame's centre at the exposure's
+            ends, in its crop's pixels.
+        reference: the frame whose outline orients the long axis.
+        fy: the full frame's focal length in pixels (a crop may be downsampled).
     """
-    extents = [frame_footprint(c, s, e) for c, s, e in zip(crops, starts, ends, strict=True)]
-    along = statistics.median(a for a, _, _ in extents)
-    across = statistics.median(b for _, b, _ in extents)
-    direction = extents[reference][2]
-    axis = direction if along >= across else torch.stack((-direction[1], direction[0]))
-    long_px, short_px = max(along, across), min(along, across)
-    short_px = max(short_px, long_px / MAX_ASPECT)
-    return Footprint(long_px, short_px, axis)
+    extents = []
+    for crop, start, end in zip(crops, starts, ends, strict=True):
+        long_, short, axis = frame_footprint(crop, start, end)
+        scale = fy / float(crop.camera.fy)
+        extents.append((long_ * scale, short * scale, axis))
+    long_px = statistics.median(a for a, _, _ in extents)
+    short_px = max(statistics.median(b for _, b, _ in extents), long_px / MAX_ASPECT)
+    aspects = tuple(min(a / b, MAX_ASPECT) for a, b, _ in extents)
+    return Footprint(long_px, short_px, extents[reference][2], aspects)
 
 
 @dataclass(frozen=True)
@@ -156,13 +214,10 @@ def shaped_start(name: str, print_: Footprint) -> ShapedStart:
     vertices, topology = _stretched(name, print_.aspect)
     tilt = _tilt(vertices, print_.aspect) if name in ("disc", "torus") else 0.0
     long_units = float(vertices[:, 1].max() - vertices[:, 1].min())
-    # The footprint's extents are box-equivalent (sqrt(12 var)): a round outline's diameter is
-    # 4 / sqrt(12) of them, a bar's length the same.
-    round_ = 4 / math.sqrt(12) if name in ("sphere", "sphere_large", "disc", "torus") else 1.0
     if name in ("sphere", "sphere_large"):
-        size_px = round_ * math.sqrt(print_.long_px * print_.short_px) / long_units
+        size_px = math.sqrt(print_.long_px * print_.short_px) / long_units
     else:
-        size_px = round_ * print_.long_px / long_units
+        size_px = print_.long_px / long_units
     dx, dy = (float(v) for v in print_.axis)
     # Columns: the object's x, y (long) and z axes in camera space, z toward the scene.
     frame = torch.tensor([[dy, dx, 0.0], [-dx, dy, 0.0], [0.0, 0.0, 1.0]])

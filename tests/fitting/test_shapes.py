@@ -8,6 +8,8 @@ from types import SimpleNamespace
 import pytest
 import torch
 
+from sfb_video.config import CropConfig
+from sfb_video.crop import object_region
 from sfb_video.fitting.shapes import Footprint, footprint, frame_footprint, shaped_start
 from sfb_video.geometry.mesh import box_fill
 from sfb_video.geometry.prototypes import load_prototype
@@ -44,10 +46,16 @@ def _streak(
     coverage /= 65
     background = torch.full((3, 120, 120), 0.3)
     image = background + 0.5 * coverage
-    mask = coverage > 0.05
+    mask = object_region(image, background, CropConfig().region_threshold, CropConfig().region_noise)
     half = 0.5 * travel * torch.tensor([math.cos(a), math.sin(a)])
     centre = torch.tensor([60.0, 60.0])
-    return SimpleNamespace(image=image, background=background, object_mask=mask, ends=(centre - half, centre + half))
+    return SimpleNamespace(
+        image=image,
+        background=background,
+        streak=mask,
+        ends=(centre - half, centre + half),
+        camera=SimpleNamespace(fy=1.0),
+    )
 
 
 @pytest.mark.parametrize("angle", [0.0, 30.0, 115.0])
@@ -58,25 +66,66 @@ def test_the_travel_is_taken_off_the_streak_length(angle: float) -> None:
     along, across, direction = frame_footprint(crop, *crop.ends)
     assert along == pytest.approx(30.0, rel=0.1)
     assert across == pytest.approx(12.0, rel=0.1)
-    assert float(direction @ torch.tensor([math.cos(math.radians(angle)), math.sin(math.radians(angle))])) > 0.999
+    assert abs(float(direction @ torch.tensor([math.cos(math.radians(angle)), math.sin(math.radians(angle))]))) > 0.999
 
 
-def test_a_streak_lost_in_the_noise_is_measured_on_its_mask() -> None:
-    # Constant noise-free crops: nothing stands above the noise floor, and the mask still
-    # holds the 70 x 12 streak; the footprint must come from it, not be NaN.
+def test_a_pen_lying_at_a_slant_to_its_motion_is_measured_whole() -> None:
+    # A 40 x 6 pen at 45 degrees to its 30 px of motion: the streak's spans along and across the
+    # motion would say 28 x 34; undoing the sweep gives the pen.
+    a = math.radians(10.0)
+    coverage = torch.zeros(120, 120)
+    for tau in torch.linspace(-0.5, 0.5, 61):
+        dx, dy = float(tau) * 30 * math.cos(a), float(tau) * 30 * math.sin(a)
+        coverage += torch.roll(_bar(40, 6, 55.0), (round(dy), round(dx)), (0, 1))
+    coverage /= 61
+    background = torch.full((3, 120, 120), 0.3)
+    image = background + 0.5 * coverage
+    config = CropConfig()
+    crop = SimpleNamespace(image=image, background=background)
+    crop.streak = object_region(image, background, config.region_threshold, config.region_noise)
+    half = 15 * torch.tensor([math.cos(a), math.sin(a)])
+    long_, short, axis = frame_footprint(crop, torch.tensor([60.0, 60.0]) - half, torch.tensor([60.0, 60.0]) + half)
+    assert long_ == pytest.approx(40.0, rel=0.1) and short == pytest.approx(6.0, abs=2.5)
+    assert abs(float(axis @ torch.tensor([math.cos(math.radians(55.0)), math.sin(math.radians(55.0))]))) > 0.99
+
+
+def test_a_region_of_one_pixel_has_a_footprint() -> None:
     crop = _streak(30, 12, 0.0, 40.0)
-    flat = SimpleNamespace(image=crop.background.clone(), background=crop.background, object_mask=crop.object_mask)
-    along, across, _ = frame_footprint(flat, *crop.ends)
-    assert math.isfinite(along) and math.isfinite(across)
-    assert across == pytest.approx(12.0, rel=0.15)
+    crop.streak = torch.zeros(120, 120, dtype=torch.bool)
+    crop.streak[60, 60] = True
+    along, across, direction = frame_footprint(crop, *crop.ends)
+    assert (along, across) == (1.0, 1.0) and float(direction[0]) == pytest.approx(1.0)
 
 
 def test_a_pen_moving_across_itself_lies_across_its_streak() -> None:
     # A pen 40 px long and 6 wide lying across its motion, moved 20 px.
     crop = _streak(40, 6, 0.0, 20.0, across_motion=True)
-    outline = footprint([crop], crop.ends[0][None], crop.ends[1][None], 0)
+    outline = footprint([crop], crop.ends[0][None], crop.ends[1][None], 0, 1.0)
     assert outline.long_px == pytest.approx(40.0, rel=0.1) and outline.short_px == pytest.approx(6.0, rel=0.25)
     assert abs(float(outline.axis[1])) > 0.999  # the long side is vertical, across the motion
+
+
+def test_a_spinning_pen_shows_a_long_object_and_a_ball_does_not() -> None:
+    # A 36 x 8 pen that lies along its motion in one frame and across it in the next: the
+    # medians of each frame's long and short sides, not of its along and across extents.
+    frames = [_streak(36, 8, 20.0, 30.0, across_motion=k % 2 == 1) for k in range(3)]
+    outline = footprint(
+        frames, torch.stack([f.ends[0] for f in frames]), torch.stack([f.ends[1] for f in frames]), 1, 1.0
+    )
+    assert outline.long_px == pytest.approx(36.0, rel=0.1) and outline.short_px == pytest.approx(8.0, rel=0.3)
+    assert outline.shows("long") and outline.shows("flat")
+    assert abs(float(outline.axis @ torch.tensor([math.cos(math.radians(20.0)), math.sin(math.radians(20.0))]))) < 0.02
+    balls = [_streak(24, 24, 20.0, 30.0) for _ in range(3)]
+    round_ = footprint(balls, torch.stack([f.ends[0] for f in balls]), torch.stack([f.ends[1] for f in balls]), 0, 1.0)
+    assert not round_.shows("long") and not round_.shows("flat")
+
+
+def test_the_footprint_is_in_full_frame_pixels() -> None:
+    # The same streak in a crop downsampled by 2 (its focal length halved) measures the same.
+    crop = _streak(30, 12, 0.0, 40.0)
+    crop.camera = SimpleNamespace(fy=0.5)
+    outline = footprint([crop], crop.ends[0][None], crop.ends[1][None], 0, 1.0)
+    assert outline.long_px == pytest.approx(60.0, rel=0.1) and outline.short_px == pytest.approx(24.0, rel=0.1)
 
 
 def _projected_extents(name: str, outline: Footprint) -> tuple[float, float]:
@@ -93,17 +142,14 @@ def _projected_extents(name: str, outline: Footprint) -> tuple[float, float]:
 def test_each_shaped_start_covers_the_footprint_along_its_axis(name: str) -> None:
     outline = Footprint(long_px=60.0, short_px=20.0, axis=torch.tensor([0.6, 0.8]))
     along, across = _projected_extents(name, outline)
-    # The footprint's extents are box-equivalent: a round outline is 4 / sqrt(12) of them across.
-    wide = 4 / math.sqrt(12) if name in ("disc", "torus") else 1.0
-    assert along == pytest.approx(60.0 * wide, rel=0.02)
+    assert along == pytest.approx(60.0, rel=0.02)
     # Its outline's short side matches the footprint's (the disc and ring tilted so).
-    assert across == pytest.approx(20.0 * wide, rel=0.15)
+    assert across == pytest.approx(20.0, rel=0.15)
 
 
 def test_a_round_footprint_starts_a_sphere_of_its_diameter() -> None:
     along, across = _projected_extents("sphere", Footprint(30.0, 30.0, torch.tensor([1.0, 0.0])))
-    diameter = 30.0 * 4 / math.sqrt(12)  # a disc's box-equivalent extent is sqrt(12) / 4 of its diameter
-    assert along == pytest.approx(diameter, rel=0.02) and across == pytest.approx(diameter, rel=0.02)
+    assert along == pytest.approx(30.0, rel=0.02) and across == pytest.approx(30.0, rel=0.02)
 
 
 def test_the_box_has_flat_faces_and_the_disc_is_flat() -> None:
