@@ -61,7 +61,7 @@ from sfb_video.fitting.engine import (
 )
 from sfb_video.fitting.frame import WarmStart, fit_frame, frame_terms
 from sfb_video.fitting.path import Seed, apparent_px, choose_motion, fit_path, measured_exposure, path_params
-from sfb_video.fitting.shapes import Footprint, ShapedStart, footprint, shaped_start
+from sfb_video.fitting.shapes import NEEDS, Footprint, ShapedStart, footprint, shaped_start
 from sfb_video.fitting.spin import SpinScore, score_spin, search_spin, spin_grid, upsample_texture
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import MeshTopology
@@ -290,7 +290,8 @@ class WindowStart:
             starts.append(uv[0])
             ends.append(uv[1])
         reference = next(k for k, f in enumerate(self.frames) if f.index == self.best_seed.index)
-        return footprint([f.crop for f in self.frames], torch.stack(starts), torch.stack(ends), reference)
+        crops = [f.crop for f in self.frames]
+        return footprint(crops, torch.stack(starts), torch.stack(ends), reference, float(self.path.camera.fy))
 
 
 def start_window(
@@ -339,18 +340,22 @@ def start_window(
     )
 
 
-def window_candidate(window: WindowStart, start: ShapedStart | None, spin: SpinScore | None = None) -> Optimisation:
+def window_candidate(
+    window: WindowStart, start: ShapedStart | None, spin: SpinScore | None = None, rigid: bool = False
+) -> Optimisation:
     """One candidate's optimisation on a copy of the window's path.
 
     Args:
         start: None for the best seed's mesh, texture and orientation, else a prototype
-            stretched, turned and sized to the window's footprint (the Laplacian then holds its
-            deformation smooth, not the mesh itself, so its corners and thin parts may stay).
+            stretched, turned and sized to the window's footprint (or the seed's, undeformed).
         spin: a searched spin and its texture, else the best seed's spin (and, for a shaped
             start, a grey texture).
+        rigid: the mesh held (its pose, path and texture learnt): the shape trial's start,
+            whose deformation rounded a box's corners off within the fit (box_fill 0.99 ->
+            0.39) and lowered the outlines' TIoU (benchmarks/RESULTS.md, issue 32).
     """
     fit_config, config, seed = window.fit_config, window.config, window.best_seed
-    learnt = (fit_config.deform, fit_config.learn_texture)
+    learnt = (fit_config.deform and not rigid, fit_config.learn_texture)
     turning = seed.state.motion.omega / window.exposure_fraction if spin is None else spin.spin
     rest = None
     if start is None:
@@ -412,13 +417,17 @@ def trial_shapes(
 
     Each shape gets its own spin: a box, a pen or a ring explains the frames only once it turns
     as the object did, and at one spin for all (the seeds') the trial chose a box for a ball and
-    a sphere for a box. A prototype other than the sphere must beat it by ``joint.shape_margin``:
-    a ball's streaks are explained about as well by a torus seen face on or a short capsule.
+    a sphere for a box. The choice is kept honest twice over: a long or flat prototype enters
+    only when the footprint shows the evidence for it (:data:`sfb_video.fitting.shapes.NEEDS`;
+    a ball's streaks are explained about as well by a disc seen face on or a short capsule, and
+    the trial chose them for balls), and a prototype other than the sphere must beat it by
+    ``joint.shape_margin``. Prototypes left out have no residual.
     """
     config = window.config
     outline = window.footprint()
     near = torch.cat((torch.zeros(1, 3), window.seed_spins)).to(window.device)
-    starts = {name: shaped_start(name, outline) for name in dict.fromkeys(("sphere", *names))}
+    shown = [n for n in names if n not in NEEDS or outline.shows(NEEDS[n])]
+    starts = {name: shaped_start(name, outline) for name in dict.fromkeys(("sphere", *shown))}
 
     def search(start: ShapedStart, grid: torch.Tensor, refine: tuple[float, ...]) -> SpinScore:
         def score(spin: torch.Tensor) -> SpinScore:
@@ -526,7 +535,7 @@ def fit_window(
             # On the seeds' path, not on the one of a trial: a trial from a wrong spin bends the
             # path to fit it, and the search then finds a wrong spin that explains the frames
             # better than the true one on the seeds' path (40 degrees off against 4).
-            fits[f"{kind}:{start.name}"] = window_candidate(window, start, spin)
+            fits[f"{kind}:{start.name}"] = window_candidate(window, start, spin, rigid=kind == "shape")
         trial = max(1, round(config.trial_fraction * config.iterations)) if len(fits) > 1 else None
         key, trials = race(fits, trial, on_step)
     fit = fits[key]
