@@ -94,10 +94,13 @@ def unswept(mask: torch.Tensor, travel: torch.Tensor) -> torch.Tensor:
     out = mask.clone()
     for k in range(1, steps + 1):
         dx, dy = (round(float(v) * k / steps) for v in travel)
+        if abs(dx) >= width or abs(dy) >= height:
+            # A travel longer than the crop: no outline fits inside it (the caller falls back).
+            return torch.zeros_like(mask)
         shifted = torch.zeros_like(mask)
         # shifted(p) = mask(p + (dx, dy)), False beyond the crop.
-        ys, xs = slice(max(0, -dy), min(height, height - dy)), slice(max(0, -dx), min(width, width - dx))
-        shifted[ys, xs] = mask[max(0, dy) : min(height, height + dy), max(0, dx) : min(width, width + dx)]
+        target = slice(max(0, -dy), height - max(0, dy)), slice(max(0, -dx), width - max(0, dx))
+        shifted[target] = mask[max(0, dy) : height - max(0, -dy), max(0, dx) : width - max(0, -dx)]
         out &= shifted
     return out
 

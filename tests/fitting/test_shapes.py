@@ -10,7 +10,7 @@ import torch
 
 from sfb_video.config import CropConfig
 from sfb_video.crop import object_region
-from sfb_video.fitting.shapes import Footprint, footprint, frame_footprint, shaped_start
+from sfb_video.fitting.shapes import Footprint, footprint, frame_footprint, shaped_start, unswept
 from sfb_video.geometry.mesh import box_fill
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.geometry.rotation import axis_angle_to_matrix
@@ -87,6 +87,24 @@ def test_a_pen_lying_at_a_slant_to_its_motion_is_measured_whole() -> None:
     long_, short, axis = frame_footprint(crop, torch.tensor([60.0, 60.0]) - half, torch.tensor([60.0, 60.0]) + half)
     assert long_ == pytest.approx(40.0, rel=0.1) and short == pytest.approx(6.0, abs=2.5)
     assert abs(float(axis @ torch.tensor([math.cos(math.radians(55.0)), math.sin(math.radians(55.0))]))) > 0.99
+
+
+@pytest.mark.parametrize("travel", [(-130.0, 20.0), (5.0, 125.0), (-60.0, -70.0)])
+def test_a_travel_longer_than_the_crop_leaves_no_outline(travel: tuple[float, float]) -> None:
+    # Real footage: a path that overshoots a small crop (falling_pen crashed here).
+    mask = torch.zeros(27, 29, dtype=torch.bool)
+    mask[5:20, 5:25] = True
+    assert not bool(unswept(mask, torch.tensor(travel)).any())
+    crop = SimpleNamespace(streak=mask)
+    long_, short, _ = frame_footprint(crop, torch.zeros(2), torch.tensor(travel))
+    assert long_ >= 1.0 and short >= 1.0
+
+
+def test_unswept_undoes_a_short_sweep_in_every_direction() -> None:
+    mask = torch.zeros(40, 40, dtype=torch.bool)
+    mask[10:30, 10:30] = True
+    for travel in ((6.0, 0.0), (-6.0, 0.0), (0.0, 6.0), (0.0, -6.0)):
+        assert int(unswept(mask, torch.tensor(travel)).sum()) == 20 * 14
 
 
 def test_a_region_of_one_pixel_has_a_footprint() -> None:
