@@ -170,7 +170,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if image.shape != background.shape:
         raise SfbError(f"image {args.image} and background {args.background} differ in size")
     camera = PinholeCamera.from_fov(image.shape[2], image.shape[1], config.camera.fov_y_deg)
-    box = _parse_box(args.box) or find_object_box(image, background, config.crop)
+    box = _parse_box(args.box) or find_object_box(image, background, config.crop.region_threshold)
     if box is None:
         raise NoObjectError(f"no object: {args.image} does not differ from its background")
     frame = FrameWithBackground(0, image.to(device), background.to(device))

@@ -87,13 +87,13 @@ def object_region(image: torch.Tensor, background: torch.Tensor, threshold: floa
     return torch.from_numpy(grown).to(strict.device)
 
 
-def find_object_box(image: torch.Tensor, background: torch.Tensor, config: CropConfig) -> Box | None:
-    """The box of the largest blob of :func:`object_region`, or None if there is none.
+def find_object_box(image: torch.Tensor, background: torch.Tensor, threshold: float) -> Box | None:
+    """The box of the largest blob of sum_rgb |I - B| > threshold, or None if there is none.
 
     Args:
         image, background: (3, H, W) in [0, 1].
     """
-    return largest_blob(object_region(image, background, config.region_threshold, 0.0))[1]
+    return largest_blob(object_region(image, background, threshold, 0.0))[1]
 
 
 def crop_box(box: Box, frame_size: tuple[int, int], config: CropConfig) -> Box:

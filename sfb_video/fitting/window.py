@@ -21,8 +21,9 @@ spin refined (:mod:`sfb_video.fitting.spin`), starts the fit alone. Without a tr
 window, or ``joint.prototypes`` empty) the seeded mesh races the seed's prototype at a searched
 spin for the first part of the fit, and the lowest joint L_I goes on
 (:func:`sfb_video.fitting.engine.race`).
-The Laplacian's weight falls over the fit (``joint.laplacian_end``), and on a shaped start it
-holds the deformation smooth, not the mesh, so corners and thin parts may form and stay.
+The Laplacian's weight falls over the fit (``joint.laplacian_end``); on the seed's prototype it
+holds the deformation smooth, not the mesh. The trial's shape is fitted rigid: deformed, a box's
+corners were rounded off.
 
 After the fit each frame is refined from it (:func:`refine_frames`): the mesh held, the frame's
 own texture and pose fitted, so that the window shows one object that explains each frame as
