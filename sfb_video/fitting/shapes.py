@@ -17,6 +17,7 @@ whoever starts nearest in size.
 
 from __future__ import annotations
 
+import itertools
 import math
 import statistics
 from dataclasses import dataclass
@@ -82,18 +83,36 @@ def _filled(mask: torch.Tensor) -> torch.Tensor:
     return mask | torch.from_numpy(flooded[1:-1, 1:-1] == 0).to(mask.device)
 
 
-def unswept(mask: torch.Tensor, travel: torch.Tensor) -> torch.Tensor:
-    """The object's outline whose sweep along ``travel`` (2,) px made the streak ``mask`` (H, W).
+def _offsets(track: torch.Tensor) -> list[tuple[int, int]]:
+    """The whole-pixel offsets from ``track``'s (K, 2) first position that its polyline passes,
+    at most a pixel apart."""
+    offsets = {(0, 0)}
+    for a, b in itertools.pairwise(track):
+        steps = max(1, math.ceil(float((b - a).norm())))
+        for k in range(1, steps + 1):
+            dx, dy = (round(float(v)) for v in a + (b - a) * k / steps - track[0])
+            offsets.add((dx, dy))
+    return sorted(offsets)
 
-    A streak is the outline swept along the travel T, a Minkowski sum with a segment; eroding
-    the streak by that segment undoes it (exactly for a convex outline), whatever way the
-    object lies to its motion. The outline is placed where the exposure starts.
+
+def unswept(mask: torch.Tensor, track: torch.Tensor) -> torch.Tensor:
+    """The object's outline whose sweep along ``track`` made the streak ``mask`` (H, W).
+
+    A streak is the outline swept along the object's track within the exposure, a Minkowski sum
+    with that curve; eroding the streak by the curve undoes it (exactly for a convex outline),
+    whatever way the object lies to its motion. The track's curve matters: a ball swung on a
+    string draws an arc, which its straight chord would erode into a long outline.
+
+    Args:
+        mask: (H, W) bool streak region.
+        track: (K, 2) the object centre's image positions over the exposure, K >= 2, in order.
+
+    Returns:
+        (H, W) bool outline, placed where the exposure starts.
     """
-    steps = max(1, math.ceil(float(travel.norm())))
     height, width = mask.shape
     out = mask.clone()
-    for k in range(1, steps + 1):
-        dx, dy = (round(float(v) * k / steps) for v in travel)
+    for dx, dy in _offsets(track.double()):
         if abs(dx) >= width or abs(dy) >= height:
             # A travel longer than the crop: no outline fits inside it (the caller falls back).
             return torch.zeros_like(mask)
@@ -112,7 +131,7 @@ def _extents(points: torch.Tensor, axis: torch.Tensor) -> tuple[float, float]:
     return float(along.max() - along.min()) + 1.0, float(across.max() - across.min()) + 1.0
 
 
-def frame_footprint(crop: Crop, start: torch.Tensor, end: torch.Tensor) -> tuple[float, float, torch.Tensor]:
+def frame_footprint(crop: Crop, track: torch.Tensor) -> tuple[float, float, torch.Tensor]:
     """One frame's object outline: its long and short side, and the (2,) direction of the long one.
 
     From the crop's streak, its object region grown into the faint parts
@@ -125,15 +144,16 @@ def frame_footprint(crop: Crop, start: torch.Tensor, end: torch.Tensor) -> tuple
 
     Args:
         crop: the frame's crop.
-        start, end: (2,) the object centre's image positions at the exposure's ends (crop pixels).
+        track: (K, 2) the object centre's image positions over the exposure (crop pixels), K >= 2.
 
     Returns:
         the long side, the short side (each at least a pixel) and the long side's direction.
     """
-    travel = (end - start).double()
+    track = track.double()
+    travel = track[-1] - track[0]
     direction = travel / travel.norm().clamp_min(1e-9)
     region = _filled(crop.streak)
-    outline = unswept(region, travel)
+    outline = unswept(region, track)
     ys, xs = torch.nonzero(outline if int(outline.sum()) >= 2 else region, as_tuple=True)
     if len(xs) < 2:
         return 1.0, 1.0, direction.float()
@@ -150,18 +170,18 @@ def frame_footprint(crop: Crop, start: torch.Tensor, end: torch.Tensor) -> tuple
     return long_, short, axis.float()
 
 
-def footprint(crops: list[Crop], starts: torch.Tensor, ends: torch.Tensor, reference: int, fy: float) -> Footprint:
+def footprint(crops: list[Crop], tracks: torch.Tensor, reference: int, fy: float) -> Footprint:
     """The window's footprint in full-frame pixels, oriented as in frame ``reference``.
 
     Args:
-        crops: the window's crops; starts, ends: (F, 2) each frame's centre at the exposure's
-            ends, in its crop's pixels.
+        crops: the window's crops; tracks: (F, K, 2) each frame's centre over its exposure, in
+            its crop's pixels.
         reference: the frame whose outline orients the long axis.
         fy: the full frame's focal length in pixels (a crop may be downsampled).
     """
     extents = []
-    for crop, start, end in zip(crops, starts, ends, strict=True):
-        long_, short, axis = frame_footprint(crop, start, end)
+    for crop, track in zip(crops, tracks, strict=True):
+        long_, short, axis = frame_footprint(crop, track)
         scale = fy / float(crop.camera.fy)
         extents.append((long_ * scale, short * scale, axis))
     long_px = statistics.median(a for a, _, _ in extents)

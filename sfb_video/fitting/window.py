@@ -283,16 +283,13 @@ class WindowStart:
 
     def footprint(self) -> Footprint:
         """The object's outline that the window's streaks show on the seeds' path."""
+        # Eight points over the exposure follow a curved path's arc, not only its chord.
+        taus = torch.linspace(0.0, 1.0, 8, device=self.device)
         with torch.no_grad():
-            _, positions = self.path(self.frame_times, torch.tensor([0.0, 1.0], device=self.device))
-        starts, ends = [], []
-        for frame, p in zip(self.frames, positions, strict=True):
-            uv, _ = frame.crop.camera.project(p)
-            starts.append(uv[0])
-            ends.append(uv[1])
+            _, positions = self.path(self.frame_times, taus)
+        tracks = torch.stack([f.crop.camera.project(p)[0] for f, p in zip(self.frames, positions, strict=True)])
         reference = next(k for k, f in enumerate(self.frames) if f.index == self.best_seed.index)
-        crops = [f.crop for f in self.frames]
-        return footprint(crops, torch.stack(starts), torch.stack(ends), reference, float(self.path.camera.fy))
+        return footprint([f.crop for f in self.frames], tracks, reference, float(self.path.camera.fy))
 
 
 def start_window(

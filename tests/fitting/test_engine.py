@@ -29,7 +29,8 @@ RECORDED = json.loads((Path(__file__).with_name("engine_curves.json")).read_text
 # them bit for bit on the machine that recorded them. The window's were recorded again when its
 # candidates became the footprint's shape trial and its Laplacian weight an annealed one (issue
 # 32), and again when the crop's object region grew into the streak's faint parts and the
-# trial's shape was fitted rigid (issue 32, the next session). The tolerance only allows for
+# trial's shape was fitted rigid (issue 32, the next session), and when the footprint was unswept
+# along the path's arc. The tolerance only allows for
 # another CPU's float rounding: a changed step order, stop rule or loss changes them in the
 # first decimals.
 REL = 1e-5

@@ -63,7 +63,7 @@ def test_the_travel_is_taken_off_the_streak_length(angle: float) -> None:
     # A 12 px wide pen 30 px long that moved 40 px along itself leaves a 70 px streak, fainter
     # at its ends, where a threshold would cut it.
     crop = _streak(30, 12, angle, 40.0)
-    along, across, direction = frame_footprint(crop, *crop.ends)
+    along, across, direction = frame_footprint(crop, torch.stack(crop.ends))
     assert along == pytest.approx(30.0, rel=0.1)
     assert across == pytest.approx(12.0, rel=0.1)
     assert abs(float(direction @ torch.tensor([math.cos(math.radians(angle)), math.sin(math.radians(angle))]))) > 0.999
@@ -84,7 +84,8 @@ def test_a_pen_lying_at_a_slant_to_its_motion_is_measured_whole() -> None:
     crop = SimpleNamespace(image=image, background=background)
     crop.streak = object_region(image, background, config.region_threshold, config.region_noise)
     half = 15 * torch.tensor([math.cos(a), math.sin(a)])
-    long_, short, axis = frame_footprint(crop, torch.tensor([60.0, 60.0]) - half, torch.tensor([60.0, 60.0]) + half)
+    centre = torch.tensor([60.0, 60.0])
+    long_, short, axis = frame_footprint(crop, torch.stack((centre - half, centre + half)))
     assert long_ == pytest.approx(40.0, rel=0.1) and short == pytest.approx(6.0, abs=2.5)
     assert abs(float(axis @ torch.tensor([math.cos(math.radians(55.0)), math.sin(math.radians(55.0))]))) > 0.99
 
@@ -94,9 +95,9 @@ def test_a_travel_longer_than_the_crop_leaves_no_outline(travel: tuple[float, fl
     # Real footage: a path that overshoots a small crop (falling_pen crashed here).
     mask = torch.zeros(27, 29, dtype=torch.bool)
     mask[5:20, 5:25] = True
-    assert not bool(unswept(mask, torch.tensor(travel)).any())
+    assert not bool(unswept(mask, torch.tensor([(0.0, 0.0), travel])).any())
     crop = SimpleNamespace(streak=mask)
-    long_, short, _ = frame_footprint(crop, torch.zeros(2), torch.tensor(travel))
+    long_, short, _ = frame_footprint(crop, torch.tensor([(0.0, 0.0), travel]))
     assert long_ >= 1.0 and short >= 1.0
 
 
@@ -104,21 +105,38 @@ def test_unswept_undoes_a_short_sweep_in_every_direction() -> None:
     mask = torch.zeros(40, 40, dtype=torch.bool)
     mask[10:30, 10:30] = True
     for travel in ((6.0, 0.0), (-6.0, 0.0), (0.0, 6.0), (0.0, -6.0)):
-        assert int(unswept(mask, torch.tensor(travel)).sum()) == 20 * 14
+        assert int(unswept(mask, torch.tensor([(0.0, 0.0), travel])).sum()) == 20 * 14
+
+
+def test_a_ball_swung_along_an_arc_stays_round() -> None:
+    # A 20 px ball swept along a quarter circle of radius 40 (a ball on a string): eroded by
+    # the arc it is a ball again; the arc's 57 px chord would leave a sliver.
+    size, radius, ball = 120, 40.0, 10.0
+    ys, xs = torch.meshgrid(torch.arange(size).float(), torch.arange(size).float(), indexing="ij")
+    angles = torch.linspace(0.0, math.pi / 2, 91)
+    centres = torch.stack((20 + radius * torch.cos(angles), 20 + radius * torch.sin(angles)), -1)
+    mask = torch.zeros(size, size, dtype=torch.bool)
+    for cx, cy in centres:
+        mask |= (xs - cx) ** 2 + (ys - cy) ** 2 <= ball**2
+    crop = SimpleNamespace(streak=mask)
+    long_, short, _ = frame_footprint(crop, centres[::10])
+    assert long_ == pytest.approx(21.0, abs=3.0) and short == pytest.approx(21.0, abs=3.0)
+    chord_long, chord_short, _ = frame_footprint(crop, centres[[0, -1]])
+    assert chord_long / chord_short > 1.5  # the straight chord reads it long
 
 
 def test_a_region_of_one_pixel_has_a_footprint() -> None:
     crop = _streak(30, 12, 0.0, 40.0)
     crop.streak = torch.zeros(120, 120, dtype=torch.bool)
     crop.streak[60, 60] = True
-    along, across, direction = frame_footprint(crop, *crop.ends)
+    along, across, direction = frame_footprint(crop, torch.stack(crop.ends))
     assert (along, across) == (1.0, 1.0) and float(direction[0]) == pytest.approx(1.0)
 
 
 def test_a_pen_moving_across_itself_lies_across_its_streak() -> None:
     # A pen 40 px long and 6 wide lying across its motion, moved 20 px.
     crop = _streak(40, 6, 0.0, 20.0, across_motion=True)
-    outline = footprint([crop], crop.ends[0][None], crop.ends[1][None], 0, 1.0)
+    outline = footprint([crop], torch.stack(crop.ends)[None], 0, 1.0)
     assert outline.long_px == pytest.approx(40.0, rel=0.1) and outline.short_px == pytest.approx(6.0, rel=0.25)
     assert abs(float(outline.axis[1])) > 0.999  # the long side is vertical, across the motion
 
@@ -127,14 +145,12 @@ def test_a_spinning_pen_shows_a_long_object_and_a_ball_does_not() -> None:
     # A 36 x 8 pen that lies along its motion in one frame and across it in the next: the
     # medians of each frame's long and short sides, not of its along and across extents.
     frames = [_streak(36, 8, 20.0, 30.0, across_motion=k % 2 == 1) for k in range(3)]
-    outline = footprint(
-        frames, torch.stack([f.ends[0] for f in frames]), torch.stack([f.ends[1] for f in frames]), 1, 1.0
-    )
+    outline = footprint(frames, torch.stack([torch.stack(f.ends) for f in frames]), 1, 1.0)
     assert outline.long_px == pytest.approx(36.0, rel=0.1) and outline.short_px == pytest.approx(8.0, rel=0.3)
     assert outline.shows("long") and outline.shows("flat")
     assert abs(float(outline.axis @ torch.tensor([math.cos(math.radians(20.0)), math.sin(math.radians(20.0))]))) < 0.02
     balls = [_streak(24, 24, 20.0, 30.0) for _ in range(3)]
-    round_ = footprint(balls, torch.stack([f.ends[0] for f in balls]), torch.stack([f.ends[1] for f in balls]), 0, 1.0)
+    round_ = footprint(balls, torch.stack([torch.stack(f.ends) for f in balls]), 0, 1.0)
     assert not round_.shows("long") and not round_.shows("flat")
 
 
@@ -142,7 +158,7 @@ def test_the_footprint_is_in_full_frame_pixels() -> None:
     # The same streak in a crop downsampled by 2 (its focal length halved) measures the same.
     crop = _streak(30, 12, 0.0, 40.0)
     crop.camera = SimpleNamespace(fy=0.5)
-    outline = footprint([crop], crop.ends[0][None], crop.ends[1][None], 0, 1.0)
+    outline = footprint([crop], torch.stack(crop.ends)[None], 0, 1.0)
     assert outline.long_px == pytest.approx(60.0, rel=0.1) and outline.short_px == pytest.approx(24.0, rel=0.1)
 
 
