@@ -77,6 +77,22 @@ class CameraConfig(_Checked):
     fov_y_deg: float = bounded(45.0, gt=0, le=179)
     """Vertical field of view in degrees, when the focal length is not given. 45 as in the SfB
     reference; only depth and speed in object sizes depend on it."""
+    motion: str = one_of("auto", ("auto", "on", "off"))
+    """Whether the camera may move (:mod:`sfb_video.registration`): ``on`` registers every frame
+    to a reference frame before the background, detection and fit; ``auto`` does so only when
+    some frame moved more than ``still_px``; ``off`` takes the camera as still."""
+    still_px: float = bounded(1.0, ge=0)
+    """A clip whose registered frames all move their corners less than this is still (``auto``)."""
+    min_overlap: float = bounded(0.6, gt=0, le=1)
+    """A frame that covers less than this share of its reference frame starts a new reference
+    (a pan longer than the frame); tracks end there."""
+    min_inliers: int = bounded(15, ge=4)
+    """A frame registers when at least this many matched features agree on its motion."""
+    features: int = bounded(1500, ge=50)
+    """ORB features found per frame for its registration."""
+    stabilised: bool = False
+    """Write ``tsr.mp4`` in the reference frame's coordinates (the camera held still) instead of
+    each frame's own."""
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,298 @@
+"""The camera's motion: each frame registered to a reference frame, so that a handheld clip
+holds still for the background, the detection and the fit.
+
+A hand shakes, a camera follows the play; the running-median background and the one pinhole
+camera of a clip both assume it does not move. Each frame is registered to its reference (the
+first frame, at first) by a similarity (shift, turn, zoom) from matched ORB features with
+RANSAC, which sets aside the fast mover and any other mover as outliers, then refined to a few
+hundredths of a pixel by ECC over the pixels that similarity already explains. A frame that matches
+its reference poorly is registered to the frame before and the two transforms chained; one that
+has moved so far that it overlaps its reference less than ``camera.min_overlap`` becomes the
+reference of a new *segment* (a pan longer than the frame). A frame that matches neither (no
+texture, a cut, a flash) is not registered, and the pipeline does not fit it.
+
+Only the transforms are kept (3 x 3 each), so memory does not grow with the clip. On a still
+camera every transform is within ``camera.still_px`` of the identity and, with
+``camera.motion: auto``, no frame is warped at all: a still clip's output is unchanged.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from sfb_video.atomic import write_json
+from sfb_video.config import CameraConfig
+from sfb_video.errors import SfbError
+
+WORK_SIDE = 640
+"""Features are found on the frame scaled to at most this long a side: a 4K frame's features
+are no better for a similarity, and ten times slower."""
+
+
+@dataclass(frozen=True)
+class Registration:
+    """One frame's place in its reference's coordinates.
+
+    Attributes:
+        index: the frame's index in the clip.
+        to_reference: (3, 3) the homography taking the frame's pixels (x, y, 1) to its
+            reference's, or None where registration failed.
+        segment: the reference it is registered to (0, 1, ... as the references are taken).
+        note: why registration failed, or how it was made (``chained``), else empty.
+    """
+
+    index: int
+    to_reference: np.ndarray | None
+    segment: int = 0
+    note: str = ""
+
+
+@dataclass
+class CameraMotion:
+    """Every frame's registration, and whether the camera moved at all.
+
+    Attributes:
+        frames: index -> :class:`Registration`.
+        moving: whether any frame's transform moves a corner by more than ``still_px``; a still
+            clip's frames are used as they are.
+    """
+
+    frames: dict[int, Registration] = field(default_factory=dict)
+    moving: bool = False
+
+    def of(self, index: int) -> Registration | None:
+        return self.frames.get(index)
+
+    @property
+    def failed(self) -> dict[int, str]:
+        """The frames that could not be registered, with the reason."""
+        return {i: r.note for i, r in self.frames.items() if r.to_reference is None}
+
+    def save(self, path: Path) -> None:
+        rows = [
+            {
+                "index": r.index,
+                "to_reference": None if r.to_reference is None else r.to_reference.tolist(),
+                "segment": r.segment,
+                "note": r.note,
+            }
+            for r in self.frames.values()
+        ]
+        write_json(path, {"moving": self.moving, "frames": rows})
+
+    @classmethod
+    def load(cls, path: Path) -> CameraMotion:
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise SfbError(f"cannot read the camera's motion in {path}: {exc}") from None
+        frames = {
+            r["index"]: Registration(
+                r["index"], None if r["to_reference"] is None else np.array(r["to_reference"]), r["segment"], r["note"]
+            )
+            for r in data["frames"]
+        }
+        return cls(frames, bool(data["moving"]))
+
+
+@dataclass(frozen=True)
+class _Features:
+    keypoints: np.ndarray  # (K, 2) full-frame pixels
+    descriptors: np.ndarray | None  # (K, 32) uint8
+    size: tuple[int, int]  # the frame's (width, height)
+    gray: np.ndarray  # (h, w) float32, the frame at the working scale
+    scale: float  # working pixels per frame pixel
+
+
+def _gray(image: torch.Tensor) -> np.ndarray:
+    """(H, W) uint8 grey of a (3, H, W) uint8 or float frame."""
+    pixels = image if image.dtype == torch.uint8 else image.clamp(0, 1).mul(255).round().to(torch.uint8)
+    rgb = pixels.permute(1, 2, 0).cpu().numpy()
+    return cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
+
+
+def features(image: torch.Tensor, count: int) -> _Features:
+    """ORB keypoints and descriptors of a (3, H, W) frame, in full-frame pixels."""
+    gray = _gray(image)
+    height, width = gray.shape
+    scale = min(1.0, WORK_SIDE / max(height, width))
+    if scale < 1.0:
+        gray = cv2.resize(gray, (round(width * scale), round(height * scale)), interpolation=cv2.INTER_AREA)
+    # Three pyramid levels, not eight: a camera's shake and pan hardly zoom, and keypoints from
+    # coarse levels are placed to a few pixels (measured: a pan's worst corner 1.37 px -> 0.40).
+    orb = cv2.ORB_create(nfeatures=count, fastThreshold=10, nlevels=3)
+    keypoints, descriptors = orb.detectAndCompute(gray, None)
+    # Pixel centres: the scaled image's pixel i covers the frame's (i + 0.5) / scale - 0.5.
+    points = (np.array([k.pt for k in keypoints], dtype=np.float64).reshape(-1, 2) + 0.5) / scale - 0.5
+    return _Features(points, descriptors, (width, height), gray.astype(np.float32), scale)
+
+
+def _working(scale: float) -> np.ndarray:
+    """(3, 3) frame pixels -> working pixels (pixel centres kept: (p + 0.5) scale - 0.5)."""
+    shift = 0.5 * scale - 0.5
+    return np.array([[scale, 0.0, shift], [0.0, scale, shift], [0.0, 0.0, 1.0]])
+
+
+def refine(frame: _Features, reference: _Features, to_reference: np.ndarray) -> np.ndarray:
+    """``to_reference`` refined by ECC on the grey images, as a turn and a shift: features place
+    a frame to a few tenths of a pixel, and a fence's thin wires then differ from the background
+    along every edge; ECC brings it to a few hundredths. Not an affine: its two more degrees of
+    freedom followed a swinging arm by a pixel on a still webcam clip. Kept only where it
+    converges within 2 px of the start (a mover or a flash can pull it away)."""
+    work = _working(frame.scale)
+    start = np.linalg.inv(work @ to_reference @ np.linalg.inv(work))[:2].astype(np.float32)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 1e-5)
+    # Only what the features' transform already explains: the movers (an arm, a player, the
+    # object itself) are left out, or they pull the camera with them.
+    height, width = frame.gray.shape
+    predicted = cv2.warpAffine(reference.gray, start, (width, height), flags=cv2.INTER_LINEAR, borderValue=-1.0)
+    agrees = (np.abs(frame.gray - predicted) < 20) & (predicted >= 0)
+    mask = cv2.erode(agrees.astype(np.uint8), np.ones((7, 7), np.uint8))
+    try:
+        _, warp_ = cv2.findTransformECC(
+            reference.gray, frame.gray, start.copy(), cv2.MOTION_EUCLIDEAN, criteria, mask, 3
+        )
+    except cv2.error:  # did not converge
+        return to_reference
+    refined = np.linalg.inv(work) @ np.linalg.inv(np.vstack([warp_, [0.0, 0.0, 1.0]]).astype(np.float64)) @ work
+    return refined if corner_shift(refined @ np.linalg.inv(to_reference), frame.size) < 2.0 else to_reference
+
+
+def match(frame: _Features, reference: _Features, min_inliers: int) -> tuple[np.ndarray | None, str]:
+    """The similarity (3, 3) taking ``frame``'s pixels to ``reference``'s, or None and why not.
+
+    Lowe's ratio test keeps the distinctive matches; RANSAC (seeded: the same clip gives the
+    same transforms) keeps those one similarity explains, which sets the movers aside.
+    """
+    if frame.descriptors is None or reference.descriptors is None or len(frame.keypoints) < min_inliers:
+        return None, f"too few features ({len(frame.keypoints)}) to register the camera"
+    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(frame.descriptors, reference.descriptors, k=2)
+    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
+    if len(good) < min_inliers:
+        return None, f"only {len(good)} features matched its reference"
+    src = frame.keypoints[[m.queryIdx for m in good]]
+    dst = reference.keypoints[[m.trainIdx for m in good]]
+    cv2.setRNGSeed(0)
+    affine, inliers = cv2.estimateAffinePartial2D(
+        src, dst, method=cv2.RANSAC, ransacReprojThreshold=2.0, maxIters=4000, confidence=0.999
+    )
+    kept = 0 if inliers is None else int(inliers.sum())
+    if affine is None or kept < min_inliers:
+        return None, f"only {kept} matched features agree on one camera motion"
+    zoom = float(np.sqrt(abs(np.linalg.det(affine[:, :2]))))
+    if not 0.8 < zoom < 1.25:
+        return None, f"an implausible zoom of {zoom:.2f} between frames"
+    return np.vstack([affine, [0.0, 0.0, 1.0]]), ""
+
+
+def overlap(to_reference: np.ndarray, size: tuple[int, int]) -> float:
+    """The share of the reference frame (``size`` = (width, height)) that the frame covers."""
+    width, height = size
+    corners = np.array([[0, 0], [width, 0], [width, height], [0, height]], dtype=np.float32)
+    warped = cv2.perspectiveTransform(corners[None], to_reference)[0]
+    area, _ = cv2.intersectConvexConvex(corners, warped.astype(np.float32))
+    return float(area) / (width * height)
+
+
+def corner_shift(to_reference: np.ndarray, size: tuple[int, int]) -> float:
+    """How far (pixels) the transform moves the frame's farthest corner."""
+    width, height = size
+    corners = np.array([[[0, 0], [width - 1, 0], [width - 1, height - 1], [0, height - 1]]], dtype=np.float64)
+    return float(np.abs(cv2.perspectiveTransform(corners, to_reference) - corners).max())
+
+
+def register_frames(frames: Iterable[tuple[int, torch.Tensor]], config: CameraConfig) -> CameraMotion:
+    """Register every (index, (3, H, W) image) of a clip, in order (see the module docstring).
+
+    Holds two frames' features, not the frames.
+    """
+    motion = CameraMotion()
+    reference: _Features | None = None
+    previous: tuple[_Features, np.ndarray] | None = None  # the last registered frame, and its transform
+    segment, failures = -1, 0
+    for index, image in frames:
+        found = features(image, config.features)
+        textured = len(found.keypoints) >= config.min_inliers
+        if reference is None or (textured and len(reference.keypoints) < config.min_inliers):
+            # The first frame, or one with texture after a reference without (a fade from black).
+            reference, segment, previous, failures = found, segment + 1, (found, np.eye(3)), 0
+            motion.frames[index] = Registration(index, np.eye(3), segment)
+            continue
+        to_reference, note = match(found, reference, config.min_inliers)
+        if to_reference is None and previous is not None:
+            step, _ = match(found, previous[0], config.min_inliers)
+            if step is not None:
+                to_reference, note = previous[1] @ step, "chained"
+        if to_reference is None and textured and failures >= 1:
+            # Two textured frames in a row that match nothing before them: a cut to a new view.
+            reference, segment, previous, failures = found, segment + 1, (found, np.eye(3)), 0
+            motion.frames[index] = Registration(index, np.eye(3), segment, "new reference after a cut")
+            continue
+        if to_reference is None:
+            failures += 1
+            motion.frames[index] = Registration(index, None, segment, f"camera registration failed: {note}")
+            continue
+        failures = 0
+        to_reference = refine(found, reference, to_reference)
+        if overlap(to_reference, found.size) < config.min_overlap:
+            # The camera has moved on: this frame is the reference of what follows.
+            reference, segment, to_reference, note = found, segment + 1, np.eye(3), "new reference"
+        motion.frames[index] = Registration(index, to_reference, segment, note)
+        previous = (found, to_reference)
+    alone = Counter(r.segment for r in motion.frames.values() if r.to_reference is not None)
+    for index, r in motion.frames.items():
+        if r.to_reference is not None and alone[r.segment] == 1 and len(alone) > 1:
+            # A reference with no other frame has nothing to make its background from.
+            note = "camera registration failed: the camera moved on before a second frame saw this view"
+            motion.frames[index] = Registration(index, None, r.segment, note)
+    size = None if reference is None else reference.size
+    motion.moving = any(
+        r.segment > 0 or corner_shift(r.to_reference, size) > config.still_px
+        for r in motion.frames.values()
+        if r.to_reference is not None and size is not None
+    )
+    return motion
+
+
+def warp(image: torch.Tensor, to_reference: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """A (3, H, W) frame (uint8 or float) in its reference's pixels, and the (H, W) bool pixels
+    it covers there (the rest repeat its border)."""
+    height, width = image.shape[1:]
+    pixels = np.ascontiguousarray(image.permute(1, 2, 0).cpu().numpy())
+    # Lanczos, not bilinear: bilinear's blur differs with each frame's sub-pixel offset, and a
+    # fence's wires then differ from their median (a shaken fence's recall 0.25 -> 0.75).
+    flags = cv2.INTER_LANCZOS4
+    out = cv2.warpPerspective(pixels, to_reference, (width, height), flags=flags, borderMode=cv2.BORDER_REPLICATE)
+    if out.dtype != np.uint8:  # Lanczos rings past [0, 1]; uint8 saturates by itself
+        out = np.clip(out, 0.0, 1.0)
+    covered = cv2.warpPerspective(
+        np.ones((height, width), np.uint8), to_reference, (width, height), flags=cv2.INTER_NEAREST
+    )
+    return torch.from_numpy(out).permute(2, 0, 1).contiguous(), torch.from_numpy(covered > 0)
+
+
+def unwarp(image: torch.Tensor, to_reference: np.ndarray) -> torch.Tensor:
+    """A (3, H, W) or (H, W) image in the reference's pixels brought back into the frame's own;
+    a plane (weights) is 0 where the reference does not reach, an image repeats its border."""
+    planar = image.ndim == 2
+    height, width = image.shape[-2:]
+    pixels = np.ascontiguousarray((image if planar else image.permute(1, 2, 0)).cpu().numpy())
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    border = cv2.BORDER_CONSTANT if planar else cv2.BORDER_REPLICATE
+    out = cv2.warpPerspective(pixels, to_reference, (width, height), flags=flags, borderMode=border)
+    back = torch.from_numpy(np.ascontiguousarray(out))
+    return back if planar else back.permute(2, 0, 1).contiguous()
+
+
+def to_frame(points: torch.Tensor, to_reference: np.ndarray) -> torch.Tensor:
+    """(N, 2) pixel positions in the reference's coordinates, in the frame's own."""
+    back = cv2.perspectiveTransform(points.detach().cpu().double().numpy()[None], np.linalg.inv(to_reference))[0]
+    return torch.from_numpy(back).to(points)
