@@ -91,6 +91,9 @@ def clip_options(args: argparse.Namespace) -> ClipOptions:
     )
 
 
+STABILISED = "a moving camera's tsr.mp4 in its reference frame's coordinates (held still), not each frame's own"
+
+
 def clip_arguments() -> argparse.ArgumentParser:
     """The argparse parent of the per-clip flags, shared by ``process`` and ``batch``."""
     clip = argparse.ArgumentParser(add_help=False)
@@ -103,6 +106,7 @@ def clip_arguments() -> argparse.ArgumentParser:
     clip.add_argument("--background", help="a background image instead of the running median")
     clip.add_argument("--object-diameter", type=float, help="the object's diameter in metres, for metric output")
     clip.add_argument("--focal-px", type=float, help="focal length in pixels (default: from camera.fov_y_deg)")
+    clip.add_argument("--stabilised", action="store_true", help=STABILISED)
     return clip
 
 
@@ -235,7 +239,7 @@ def _print_summary(out: Path, summary: dict) -> None:
 def _process_config(args: argparse.Namespace) -> Config:
     """The config of ``process`` and ``batch``: the preset, ``--set`` and ``--tsr``."""
     overrides = list(args.set) + ([f"video.tsr={args.tsr}"] if args.tsr is not None else [])
-    return load_config(args.config, overrides)
+    return load_config(args.config, overrides + (["camera.stabilised=true"] if args.stabilised else []))
 
 
 def cmd_process(args: argparse.Namespace) -> int:
@@ -333,7 +337,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from sfb_video.stages.process import export_run
 
     with open_export(Path(args.run)) as run:
-        config = load_config(run.work / CONFIG, args.set)
+        config = load_config(run.work / CONFIG, args.set + (["camera.stabilised=true"] if args.stabilised else []))
         fitted = saved_frames(run.work)
         missing = [f for f in args.novel_views or [] if f not in fitted]
         if missing:
@@ -532,6 +536,7 @@ def build_parser() -> argparse.ArgumentParser:
     export = sub.add_parser("export", parents=[base], help="re-render the outputs of a run without fitting again")
     export.add_argument("run", help="a run folder written by sfb-video process")
     export.add_argument("--tsr", type=at_least(1), help="sub-frames per frame in tsr.mp4")
+    export.add_argument("--stabilised", action="store_true", help=STABILISED)
     export.add_argument(
         "--novel-views", nargs="*", type=int, metavar="FRAME", help="turntables of these frames' meshes (default: best)"
     )

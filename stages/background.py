@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Iterable, Iterator
-from itertools import chain, islice
+from itertools import chain, groupby, islice
 from pathlib import Path
 
 import torch
@@ -21,7 +21,9 @@ import torch
 from sfb_video.config import VideoConfig
 from sfb_video.errors import ConfigError, SfbError
 from sfb_video.imageio import as_float, read_image
+from sfb_video.registration import CameraMotion
 from sfb_video.stages.read import read_frames
+from sfb_video.stages.register import registered, segment_of, usable
 from sfb_video.stages.types import Frame, FrameWithBackground
 from sfb_video.timing import timed, timed_iter
 
@@ -30,46 +32,98 @@ MEDIAN_BAND_VALUES = 1 << 22
 stacked frames, so that a 4K clip's stack is never whole in memory."""
 
 
-def _median(images: list[torch.Tensor]) -> torch.Tensor:
+def _median(images: list[torch.Tensor], covers: list[torch.Tensor | None] | None = None) -> torch.Tensor:
     """(3, H, W) per-pixel median of (3, H, W) frames, in their dtype (torch takes the lower
-    middle value of an even count, so a uint8 median is exactly the float one, scaled)."""
+    middle value of an even count, so a uint8 median is exactly the float one, scaled).
+
+    ``covers``: per frame the (H, W) bool pixels it saw (a registered frame's), or None for all;
+    a pixel's median is then of the frames that saw it (of all, where none did).
+    """
     first = images[0]
     out = torch.empty_like(first)
+    masked = covers is not None and any(c is not None for c in covers)
     rows = max(1, MEDIAN_BAND_VALUES // (len(images) * first.shape[0] * first.shape[2]))
     for top in range(0, first.shape[1], rows):
         band = torch.stack([image[:, top : top + rows] for image in images])
-        out[:, top : top + rows] = band.median(dim=0).values
+        plain = band.median(dim=0).values
+        if masked:
+            seen = torch.stack(
+                [torch.ones_like(band[0, 0], dtype=torch.bool) if c is None else c[top : top + rows] for c in covers]
+            )
+            values = band.float().masked_fill(~seen[:, None], float("nan")).nanmedian(dim=0).values
+            filled = torch.where(values.isnan(), plain.float(), values)
+            plain = filled.round().to(first.dtype) if first.dtype == torch.uint8 else filled.to(first.dtype)
+        out[:, top : top + rows] = plain
     return out
 
 
+def _cover(frame: Frame) -> torch.Tensor | None:
+    return None if frame.registered is None else frame.registered.covered
+
+
+def _paired(frame: Frame, background: torch.Tensor) -> FrameWithBackground:
+    """``frame`` with its ``background``; a registered frame's pixels outside what it covers of
+    its reference (a repeated border) are the background's, so that nothing shows there."""
+    pixels = frame.image
+    if frame.registered is not None:
+        if pixels.dtype != background.dtype:  # an 8-bit frame over a float background image
+            pixels, background = as_float(pixels), as_float(background)
+        pixels = torch.where(frame.registered.covered, pixels, background)
+    return FrameWithBackground(frame.index, pixels, background, frame.registered)
+
+
 def running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBackground]:
-    """Pair each frame with the median of the ``window`` frames before it (see module docstring)."""
+    """Pair each frame with the median of the ``window`` frames before it (see module docstring).
+
+    A moving camera's frames are taken a reference (a segment) at a time: a new reference's
+    frames start a background of their own, and a frame that did not register is no part of
+    any (it shows nothing of the reference's scene).
+    """
     if window < 1:
         raise ConfigError(f"video.background_window must be at least 1, got {window}")
     stream = iter(frames)
-    head = list(islice(stream, window + 1))
+    head = list(islice(stream, 2))
     if len(head) < 2:
         raise SfbError("a running-median background needs at least 2 frames; give a background image instead")
+    for _, group in groupby(chain(head, stream), key=segment_of):
+        yield from _running_median(group, window)
+
+
+def _running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBackground]:
+    stream = iter(frames)
+    head = list(islice(stream, window + 1))
+    seen = [f for f in head if usable(f)]
     for frame in head[:window]:
-        others = [f.image for f in head if f is not frame]
-        yield FrameWithBackground(frame.index, frame.image, _median(others))
-    previous = deque((f.image for f in head[:window]), maxlen=window)
+        others = [f for f in seen if f is not frame]
+        # A reference seen by one frame only has nothing to compare with: no difference.
+        yield _paired(frame, _median([f.image for f in others], [_cover(f) for f in others]) if others else frame.image)
+    previous = deque((f for f in head[:window] if usable(f)), maxlen=window)
     for frame in chain(head[window:], stream):
-        yield FrameWithBackground(frame.index, frame.image, _median(list(previous)))
-        previous.append(frame.image)
+        known = list(previous)
+        yield _paired(frame, _median([f.image for f in known], [_cover(f) for f in known]) if known else frame.image)
+        if usable(frame):
+            previous.append(frame)
 
 
 @timed("background")
-def global_median(path: Path, samples: int, frame_count: int | None) -> torch.Tensor:
-    """(3, H, W) float32 median of up to ``samples`` frames spread evenly over the clip at ``path``."""
+def global_median(
+    path: Path, samples: int, frame_count: int | None, motion: CameraMotion | None = None
+) -> torch.Tensor:
+    """(3, H, W) float32 median of up to ``samples`` frames spread evenly over the clip at
+    ``path`` (registered by ``motion`` when the camera moves)."""
     if samples < 1:
         raise ConfigError(f"video.global_samples must be at least 1, got {samples}")
     if frame_count is None:
         frame_count = sum(1 for _ in read_frames(path))
     step = max(1, frame_count // samples)
     # Deep sources are quantised to 8 bits here: 25 float frames of 4K would take 2.5 GB.
-    kept = [_quantised(f.image) for f in read_frames(path) if f.index % step == 0]
-    return as_float(_median(kept[:samples]))
+    sampled = (f for f in read_frames(path) if f.index % step == 0)
+    kept = [f for f in registered(sampled, motion) if usable(f)][:samples]
+    if not kept:
+        raise SfbError(
+            f"{path}: no frame registered with the first for a global background; use video.background=running"
+        )
+    return as_float(_median([_quantised(f.image) for f in kept], [_cover(f) for f in kept]))
 
 
 def _quantised(image: torch.Tensor) -> torch.Tensor:
@@ -84,7 +138,19 @@ def fixed_background(frames: Iterable[Frame], background: torch.Tensor) -> Itera
                 f"the background is {background.shape[2]}x{background.shape[1]} but the frames are "
                 f"{frame.image.shape[2]}x{frame.image.shape[1]}"
             )
-        yield FrameWithBackground(frame.index, frame.image, background)
+        yield _paired(frame, background)
+
+
+def frames_read(frames: range | None, config: VideoConfig) -> range | None:
+    """The frames a run over ``frames`` (all when None) reads: a running median's range takes
+    the frames around it too, as in a run over the whole clip (a short range alone has too few
+    frames for a median without the object); a global median reads the whole clip."""
+    if config.background == "global":
+        return None
+    if frames is None or config.background != "running":
+        return frames
+    window = config.background_window
+    return range(max(0, frames.start - window), max(frames.stop, frames.start + window + 1))
 
 
 def with_backgrounds(
@@ -93,26 +159,31 @@ def with_backgrounds(
     frame_count: int | None,
     frames: range | None = None,
     background: Path | None = None,
+    motion: CameraMotion | None = None,
 ) -> Iterator[FrameWithBackground]:
     """The frames of ``path`` (those in ``frames`` when given) with their backgrounds.
 
     Args:
         background: a background image; without it ``config.background`` says how to estimate one.
+        motion: a moving camera's registrations (:func:`sfb_video.stages.register.camera_motion`,
+            over :func:`frames_read`): the frames are brought into their reference's
+            coordinates first, and those that did not register are left out.
     """
-    stream = read_frames(path, frames)
+    stream = registered(read_frames(path, frames), motion)
+    if motion is not None and len({r.segment for r in motion.frames.values()}) > 1 and background is not None:
+        raise SfbError("the camera pans beyond its first view: a background image shows one view; leave it out")
     if background is not None:
         return timed_iter("background", fixed_background(stream, read_image(background)))
     if config.background == "running":
         if frames is None:
             return timed_iter("background", running_median(stream, config.background_window))
-        # The frames around the range make its backgrounds, as in a run over the whole clip: a
-        # short range alone has too few frames for a median without the object.
-        window = config.background_window
-        wider = range(max(0, frames.start - window), max(frames.stop, frames.start + window + 1))
-        ranged = (f for f in running_median(read_frames(path, wider), window) if f.index in frames)
+        wide = registered(read_frames(path, frames_read(frames, config)), motion)
+        ranged = (f for f in running_median(wide, config.background_window) if f.index in frames)
         return timed_iter("background", ranged)
     if config.background == "global":
+        if motion is not None and len({r.segment for r in motion.frames.values()}) > 1:
+            raise SfbError("the camera pans beyond its first view: video.background=global needs one view; use running")
         return timed_iter(
-            "background", fixed_background(stream, global_median(path, config.global_samples, frame_count))
+            "background", fixed_background(stream, global_median(path, config.global_samples, frame_count, motion))
         )
     raise ConfigError(f"video.background must be 'running' or 'global', got {config.background!r}")

@@ -33,6 +33,7 @@ from sfb_video.model.formation import exposure_times
 from sfb_video.model.scene import ObjectState
 from sfb_video.model.trajectory import Trajectory
 from sfb_video.recording import Recorder
+from sfb_video.registration import to_frame, unwarp
 from sfb_video.results import FrameResult, SavedWindow, load_result, load_window
 from sfb_video.run_folder import (
     BEST_MESH,
@@ -47,7 +48,7 @@ from sfb_video.run_folder import (
 )
 from sfb_video.stages.composite import BLUR_POSES, explained, fitted_region, region_box
 from sfb_video.stages.detect import difference_image, threshold_difference
-from sfb_video.stages.types import FrameStatus, FrameWithBackground, Window
+from sfb_video.stages.types import FrameStatus, FrameWithBackground, Registered, Window
 from sfb_video.stages.windows import frame_windows, with_joint
 from sfb_video.video import VideoWriter
 
@@ -82,6 +83,49 @@ class Pasted(Sequence[torch.Tensor]):
         blended = under + self.weights * (self.patches[k].float() - under)
         full[:, y : y + h, x : x + w] = blended.round_() if full.dtype == torch.uint8 else blended
         return full
+
+
+class Unwarped(Sequence[torch.Tensor]):
+    """A registered frame's rendered sub-frames (full frames in its reference's coordinates)
+    brought back into the frame as filmed: the object's region of each is warped back and
+    blended into the original frame, so the rest keeps the frame's own pixels.
+
+    Args:
+        subframes: the sub-frames in the reference's coordinates.
+        registered: the frame's registration.
+    """
+
+    def __init__(self, subframes: Pasted, registered: Registered) -> None:
+        assert registered.to_reference is not None
+        self.subframes, self.registered = subframes, registered
+        x, y, w, h = subframes.box
+        weights = torch.zeros(subframes.frame.shape[1:], dtype=torch.float32)
+        weights[y : y + h, x : x + w] = subframes.weights.cpu().float()
+        self.weights = unwarp(weights, registered.to_reference)
+
+    def __len__(self) -> int:
+        return len(self.subframes)
+
+    def __getitem__(self, k: int) -> torch.Tensor:  # type: ignore[override]
+        original = self.registered.original
+        back = unwarp(self.subframes[k], self.registered.to_reference).float()
+        blended = original.float() + self.weights * (back - original.float())
+        return blended.round_().to(torch.uint8) if original.dtype == torch.uint8 else blended
+
+
+def as_filmed(frame: FrameWithBackground, subframes: Pasted, config: Config) -> Sequence[torch.Tensor]:
+    """The sub-frames ``tsr.mp4`` shows: in the frame as filmed, or for a still camera (or
+    ``camera.stabilised``) as rendered."""
+    if frame.registered is None or frame.registered.failed or config.camera.stabilised:
+        return subframes
+    return Unwarped(subframes, frame.registered)
+
+
+def unfitted(frame: FrameWithBackground, config: Config) -> torch.Tensor:
+    """What ``tsr.mp4`` shows of a frame without a fit: the frame as filmed (or stabilised)."""
+    if frame.registered is None or (config.camera.stabilised and not frame.registered.failed):
+        return frame.pixels
+    return frame.registered.original
 
 
 @dataclass(frozen=True)
@@ -250,6 +294,14 @@ def _rows(
         yield row
 
 
+def _to_frame(rows: list[dict[str, float | int | str]], to_reference: np.ndarray) -> None:
+    """Move the rows' image positions from the reference's pixels into the frame's own (the
+    3D positions stay in the reference camera)."""
+    uv = torch.tensor([[float(r["u_px"]), float(r["v_px"])] for r in rows], dtype=torch.float64)
+    for row, (u, v) in zip(rows, to_frame(uv, to_reference).tolist(), strict=True):
+        row["u_px"], row["v_px"] = u, v
+
+
 def write_csv(path: Path, rows: list[dict[str, float | int | str]]) -> None:
     """Write ``rows`` (dicts sharing keys) as CSV, atomically; floats with 6 significant digits."""
     buffer = io.StringIO()
@@ -360,13 +412,14 @@ def export_frames(
             path = frame_path(folder, frame.index)
             if not path.is_file():
                 for _ in range(n):
-                    video.write(frame.pixels)
+                    video.write(unfitted(frame, config))
                 continue
             single = load_result(path)
             window = joint.of(frame.index)
             result = single if window is None else with_joint(single, window)
             rendered = render_frame(frame, result, camera, n, config, difference)
-            for sub in rendered.subframes:
+            filmed = as_filmed(frame, rendered.subframes, config)
+            for sub in filmed:
                 video.write(sub)
             recorder.log_fit(
                 frame.index, result.state, rendered.reconstruction, rendered.subframes, result.losses, result.curve
@@ -383,6 +436,8 @@ def export_frames(
                 record.update(window=window.frames[0], losses_before=single.losses, prototype_before=single.prototype)
                 if frame.index + 1 in window.result.losses:
                     rows += gap_rows(window.result.trajectory, frame.index, camera, n, fps, diameter)
+            if filmed is not rendered.subframes:
+                _to_frame(rows, frame.registered.to_reference)
             trajectory.append(np.array([[r["x"], r["y"], r["z"]] for r in rows], dtype=np.float32))
             recorder.log_trajectory(np.concatenate(trajectory))
             done.rows += rows

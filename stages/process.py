@@ -24,8 +24,10 @@ from sfb_video.atomic import write_json
 from sfb_video.config import Config, config_to_dict, save_config
 from sfb_video.errors import SfbError, printable
 from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.registration import CameraMotion
 from sfb_video.results import FrameResult, SavedWindow, load_window
 from sfb_video.run_folder import (
+    CAMERA_MOTION,
     CONFIG,
     DETECTIONS,
     MARKER,
@@ -38,10 +40,11 @@ from sfb_video.run_folder import (
     saved_frames,
     window_path,
 )
-from sfb_video.stages.background import with_backgrounds
+from sfb_video.stages.background import frames_read, with_backgrounds
 from sfb_video.stages.export import Exported, export_frames, write_csv
 from sfb_video.stages.masks import MaskSource, choose_masks, print_line
 from sfb_video.stages.read import check_video, probe, select_frames
+from sfb_video.stages.register import camera_motion
 from sfb_video.stages.track import track_and_fit
 from sfb_video.stages.types import FrameStatus
 from sfb_video.stages.windows import fit_windows, track_windows
@@ -148,7 +151,9 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     camera = clip_camera(info, config, record["focal_px"])
     frames = None if record["frames"] is None else range(*record["frames"])
     background = None if record["background"] is None else Path(record["background"])
-    stream = with_backgrounds(video, config.video, info.frame_count, frames, background)
+    saved_motion = (folder / CAMERA_MOTION).is_file() and config.camera.motion != "off"
+    motion = CameraMotion.load(folder / CAMERA_MOTION) if saved_motion else None
+    stream = with_backgrounds(video, config.video, info.frame_count, frames, background, motion)
     windows = track_windows(statuses, config.joint.window, config.joint.overlap) if config.joint.enabled else []
     # A window whose joint fit diverged was not saved, and one that explains its frames worse
     # than their single-frame fits is not accepted: their frames keep the single-frame fits.
@@ -160,6 +165,7 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     done = export_frames(folder, stream, statuses, windows, camera, info.fps, tsr, config, name, diameter)
     write_csv(folder / TRAJECTORY, done.rows)
     summary = _summary(record, info, statuses, done, tsr, device_note, config.video.min_explained)
+    summary["camera"] = _camera_summary(motion)
     summary["joint"] = _joint_summary(folder, summary_windows)
     write_json(folder / SUMMARY, summary)
     return summary
@@ -205,6 +211,18 @@ def _summary(
         "masks": {"source": record.get("masks", "diff"), "reason": record.get("masks_reason", "")},
         "outputs": OUTPUTS,
         "frames": frames,
+    }
+
+
+def _camera_summary(motion: CameraMotion | None) -> dict:
+    """What summary.json says of the camera's motion: whether the frames were registered, into
+    how many references (a pan beyond the first view), and which frames failed to register."""
+    if motion is None:
+        return {"moving": False, "references": 1, "unregistered": {}}
+    return {
+        "moving": motion.moving,
+        "references": len({r.segment for r in motion.frames.values()}),
+        "unregistered": {str(i): note for i, note in sorted(motion.failed.items())},
     }
 
 
@@ -339,7 +357,10 @@ def _process(
         out = printable(str(options.out))
         print(f"resuming {where} {out} ({len(saved_frames(run.work))} frames already fitted)")
     total = _frames_to_read(selected, info.frame_count)
-    frames = with_backgrounds(options.video, config.video, info.frame_count, selected, options.background)
+    motion = camera_motion(options.video, frames_read(selected, config.video), config.camera)
+    if motion is not None:
+        motion.save(run.work / CAMERA_MOTION)
+    frames = with_backgrounds(options.video, config.video, info.frame_count, selected, options.background, motion)
     # disable=None: no bar when stderr is not a terminal (logs, CI).
     with tqdm(total=total, unit="frame", desc=printable(options.video.name), disable=True if quiet else None) as bar:
 
@@ -355,7 +376,7 @@ def _process(
         raise SfbError(f"{printable(str(options.video))}: no frames in the requested range")
     if config.joint.enabled:
         windows = track_windows(statuses, config.joint.window, config.joint.overlap)
-        frames = with_backgrounds(options.video, config.video, info.frame_count, selected, options.background)
+        frames = with_backgrounds(options.video, config.video, info.frame_count, selected, options.background, motion)
         with tqdm(total=len(windows), unit="window", desc="joint fit", disable=True if quiet else None) as bar:
 
             def report_window(window: SavedWindow) -> None:

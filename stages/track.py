@@ -38,6 +38,7 @@ from sfb_video.stages.detect import (
 )
 from sfb_video.stages.fit import continued, fit_detection
 from sfb_video.stages.masks import MaskSource
+from sfb_video.stages.register import segment_of, usable
 from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground, Prediction
 
 StepReport = Callable[[FrameStatus, FrameResult | None], None]
@@ -111,11 +112,15 @@ def with_neighbours(
 
     def emit() -> tuple[FrameWithBackground, torch.Tensor, list[Neighbour]]:
         frame, mask = ahead.popleft()
-        after = list(ahead)
-        before = [history[0]] if len(history) == 2 else []
+        # A moving camera's frames of another reference, or that did not register, are not
+        # this frame's neighbours: as at a clip's ends.
+        kin = [f for f in (*history, *ahead) if segment_of(f[0]) == segment_of(frame) and usable(f[0])]
+        after = [f for f in ahead if any(f is k for k in kin)]
+        earlier = [f for f in history if any(f is k for k in kin)]
+        before = [earlier[0]] if len(earlier) == 2 else []
         later = [after[1]] if len(after) == 2 else []
         if not before and not later:  # a clip of three frames or fewer
-            before, later = ([history[-1]] if history else []), after[:1]
+            before, later = ([earlier[-1]] if earlier else []), after[:1]
         history.append((frame, mask))
         # Only what still shows in a later frame is a scene change: a track that passes the same
         # place twice (a circular swing) shows the object where an earlier frame had it.
@@ -322,7 +327,18 @@ def track_and_fit(
     saved = saved_frames(folder)
     statuses: list[FrameStatus] = []
     tracker = Tracker(camera, config)
+    segment = 0
     for frame, mask, neighbours in with_neighbours(frames, config):
+        if segment_of(frame) != segment:
+            # A new reference frame: the track's positions were in the last one's coordinates.
+            tracker.lose()
+            segment = segment_of(frame)
+        if frame.registered is not None and frame.registered.failed:
+            tracker.lose()
+            statuses.append(FrameStatus(frame.index, "failed", note=frame.registered.note))
+            if report is not None:
+                report(statuses[-1], None)
+            continue
         detection, followed = follow(frame, mask, neighbours, tracker.predictions(frame.index), config)
         reversed_first = tracker.found(followed)
         if reversed_first is not None:

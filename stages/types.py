@@ -9,10 +9,37 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from sfb_video.crop import Box
 from sfb_video.imageio import as_float
+
+
+@dataclass(frozen=True)
+class Registered:
+    """How a frame of a moving camera was brought into its reference's coordinates
+    (:mod:`sfb_video.registration`).
+
+    Attributes:
+        to_reference: (3, 3) the homography from the frame's pixels to its reference's; None
+            where registration failed (the frame is not fitted, and shows only the background).
+        original: (3, H, W) the frame as filmed, in the frame's dtype.
+        covered: (H, W) bool, the reference's pixels the frame covers (the rest repeat its
+            border, and are not compared with the background).
+        segment: which reference frame (a pan longer than the frame takes several).
+        note: why registration failed.
+    """
+
+    to_reference: np.ndarray | None
+    original: torch.Tensor
+    covered: torch.Tensor
+    segment: int
+    note: str = ""
+
+    @property
+    def failed(self) -> bool:
+        return self.to_reference is None
 
 
 @dataclass(frozen=True)
@@ -21,11 +48,14 @@ class Frame:
 
     Attributes:
         index: position in the clip, from 0.
-        image: (3, H, W) RGB: uint8 for 8-bit sources, else float32 in [0, 1].
+        image: (3, H, W) RGB: uint8 for 8-bit sources, else float32 in [0, 1]; in its
+            reference's coordinates when ``registered``.
+        registered: how it was registered, for a moving camera (None: a still one).
     """
 
     index: int
     image: torch.Tensor
+    registered: Registered | None = None
 
 
 @dataclass(frozen=True)
@@ -35,12 +65,16 @@ class FrameWithBackground:
     Attributes:
         index: the frame's position in the clip.
         pixels, background_pixels: (3, H, W) each, kept as compact as the source allows: uint8
-            from an 8-bit clip (a 4K frame is 25 MB, not 100), else float32 in [0, 1].
+            from an 8-bit clip (a 4K frame is 25 MB, not 100), else float32 in [0, 1]; in the
+            reference's coordinates when ``registered`` (pixels it does not cover are the
+            background's).
+        registered: the frame's registration, for a moving camera.
     """
 
     index: int
     pixels: torch.Tensor
     background_pixels: torch.Tensor
+    registered: Registered | None = None
 
     @property
     def image(self) -> torch.Tensor:

@@ -91,3 +91,16 @@ def test_a_large_faint_disc_is_detected_whole_in_every_frame() -> None:
         found = choose_blob(frame.index, moving_mask(mask, neighbours, config.detect), None, config.detect)
         # The true box holds every pixel 0.02 away from the background; measured IoU 0.73-0.82.
         assert found is not None and box_iou(found.box, boxes[frame.index]) > 0.65, frame.index
+
+
+@pytest.mark.parametrize("name", ["circle_fast.avi", "falling_pen.avi", "floorball_res.avi", "falling_two.mp4"])
+def test_a_real_still_camera_is_found_still(name: str) -> None:
+    # With camera.motion auto, a still clip is not warped: its outputs stay as they were.
+    from sfb_video.config import CameraConfig
+    from sfb_video.registration import register_frames
+    from sfb_video.stages.read import read_frames
+    from sfb_video.stages.register import camera_motion
+
+    assert camera_motion(CLIPS / name, range(0, 40), CameraConfig()) is None
+    motion = register_frames(((f.index, f.image) for f in read_frames(CLIPS / name, range(0, 40))), CameraConfig())
+    assert not motion.failed
