@@ -7,6 +7,10 @@ Processes each clip's frame range (``name:start:stop`` of ``../shared/data/clips
 detection and the ``--tsr`` sub-frames of ``tsr.mp4`` over the same box, and prints each
 window's shape (the joint fit's prototype and the shape trial's residuals). There is no truth:
 the picture is the check (a pen long and thin, a ball round, no streak left behind).
+
+``--shake SEED`` first shakes the clip as a hand holds a phone (up to 6 px and 1 degree a frame,
+:mod:`sfb_video.synth.shake`) and shows each frame's tiles where the object is in that frame:
+the background should stay as filmed (not smeared), the object sharp.
 """
 
 from __future__ import annotations
@@ -21,8 +25,11 @@ import torch
 
 from sfb_video.config import load_config
 from sfb_video.imageio import to_uint8, write_image
+from sfb_video.registration import CameraMotion
+from sfb_video.run_folder import CAMERA_MOTION
 from sfb_video.stages.process import ProcessOptions, process_clip
-from sfb_video.video import VideoReader
+from sfb_video.synth.shake import shake_frames, shake_transforms
+from sfb_video.video import VideoReader, VideoWriter
 
 CLIPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "clips"
 DEFAULT = ("falling_pen:0:8", "circle_fast:8:16")
@@ -41,19 +48,46 @@ def _tile(image: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
     return cv2.resize(crop, (round(w * TILE_PX / h), TILE_PX), interpolation=cv2.INTER_NEAREST)
 
 
-def montage(name: str, start: int, stop: int, config_name: str, out: Path, tsr: int) -> None:
+def _shaken(clip: Path, seed: int, out: Path) -> Path:
+    """``clip`` shaken by :func:`sfb_video.synth.shake.shake_transforms`, as an .mp4 in ``out``."""
+    frames = np.stack(_frames(clip))
+    size = (frames.shape[2], frames.shape[1])
+    moves = shake_transforms(len(frames), size, seed, max_shift_px=6.0, max_turn_deg=1.0)
+    path = out / f"{clip.stem}_shaken.mp4"
+    with VideoWriter(path, 30.0, *size) as video:
+        for frame in shake_frames(frames, moves):
+            video.write(frame)
+    return path
+
+
+def _in_frame(box: tuple[int, int, int, int], to_reference: np.ndarray | None) -> tuple[int, int, int, int]:
+    """A box in the reference's coordinates taken into the frame's own (same size)."""
+    if to_reference is None:
+        return box
+    x, y, w, h = box
+    centre = np.array([[[x + w / 2, y + h / 2]]])
+    u, v = cv2.perspectiveTransform(centre, np.linalg.inv(to_reference))[0, 0]
+    return max(0, round(u - w / 2)), max(0, round(v - h / 2)), w, h
+
+
+def montage(name: str, start: int, stop: int, config_name: str, out: Path, tsr: int, shake: int | None) -> None:
     clip = CLIPS / f"{name}.avi" if (CLIPS / f"{name}.avi").is_file() else CLIPS / f"{name}.mp4"
+    if shake is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        clip, name = _shaken(clip, shake, out), f"{name}_shaken"
     run = out / name
     config = load_config(config_name, [f"video.tsr={tsr}"])
     options = ProcessOptions(video=clip, out=run, frames=f"{start}:{stop}", overwrite=True, masks="diff")
     process_clip(options, config, torch.device("cpu"), quiet=True)
     summary = json.loads((run / "summary.json").read_text())
+    motion = CameraMotion.load(run / CAMERA_MOTION) if (run / CAMERA_MOTION).is_file() else None
     inputs, sub = _frames(clip), _frames(run / "tsr.mp4")
     rows = []
     for frame in summary["frames"]:
         if frame.get("status") != "fitted" or frame.get("box") is None:
             continue
-        x, y, w, h = frame["box"]
+        registration = None if motion is None else motion.of(frame["index"])
+        x, y, w, h = _in_frame(tuple(frame["box"]), None if registration is None else registration.to_reference)
         pad = max(w, h) // 3
         box = (max(0, x - pad), max(0, y - pad), w + 2 * pad, h + 2 * pad)
         k = frame["index"] - start
@@ -78,11 +112,12 @@ def main() -> None:
     parser.add_argument("--config", default="default")
     parser.add_argument("--tsr", type=int, default=4)
     parser.add_argument("--out", type=Path, default=Path("runs/real-montage"))
+    parser.add_argument("--shake", type=int, metavar="SEED", help="shake each clip first (a handheld camera)")
     args = parser.parse_args()
     for spec in args.clip or DEFAULT:
         name, start, stop = spec.split(":")
-        montage(name, int(start), int(stop), args.config, args.out, args.tsr)
-        print(f"wrote {args.out / name}.png")
+        montage(name, int(start), int(stop), args.config, args.out, args.tsr, args.shake)
+        print(f"wrote {args.out / name}{'' if args.shake is None else '_shaken'}.png")
 
 
 if __name__ == "__main__":
