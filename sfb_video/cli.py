@@ -356,9 +356,11 @@ def _eval_sequences(args: argparse.Namespace) -> list:
     from sfb_video.evaluation.synthetic_set import SETS, ensure_set, list_synthetic
 
     root = Path(args.root)
+    if args.shaken and args.dataset not in SETS:
+        raise SfbError(f"--shaken is for the generated sets ({', '.join(SETS)}), not {args.dataset}")
     if args.dataset in SETS:
         ensure_set(root, SETS[args.dataset](), quiet=args.quiet)
-        sequences = list_synthetic(root, args.dataset)
+        sequences = list_synthetic(root, args.dataset, args.shaken)
     else:
         sequences = list_sequences(root, args.dataset)
     if args.sequence:
@@ -387,6 +389,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         "modes": ["video", *modes] if modes == ("joint",) else list(modes),
         "sequences": args.sequence,
         "max_frames": args.max_frames,
+        "shaken": args.shaken,
     }
     rows = []
     # An interrupted evaluation in a new folder keeps the tables it finished, marked incomplete.
@@ -558,6 +561,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     evaluate.add_argument("--sequence", action="append", help="only this sequence (repeatable)")
     evaluate.add_argument("--max-frames", type=at_least(1), help="only the first N frames of each sequence")
+    evaluate.add_argument(
+        "--shaken", action="store_true", help="synthetic sets: as a handheld camera films them, registered first"
+    )
     evaluate.add_argument(
         "--ray-address",
         help="fit the sequences (video, joint) or frames (per-frame) on Ray: local, auto or HOST:PORT",

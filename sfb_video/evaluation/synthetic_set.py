@@ -20,12 +20,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from sfb_video.atomic import atomic_write_bytes
+from sfb_video.config import CameraConfig
 from sfb_video.errors import SfbError
 from sfb_video.evaluation.datasets import BenchmarkFrame
+from sfb_video.registration import register_frames, warp
 from sfb_video.synth import ClipSpec, SyntheticClip
 from sfb_video.synth.io import load_clip, write_clip
+from sfb_video.synth.shake import from_first, shake_frames, shake_transforms
 
 SET_FILE = "set.json"
 """Written last into the set's folder: the specs, so a folder is known complete and current."""
@@ -169,12 +173,19 @@ class SyntheticSequence:
     num_frames: int
     clip: SyntheticClip
     told_exposure: bool = True
+    shaken: bool = False
 
     def frames(self) -> Iterator[BenchmarkFrame]:
-        """The frames in which the object is seen, with the truth the benchmark would hand over."""
+        """The frames in which the object is seen, with the truth the benchmark would hand over.
+
+        ``shaken``: the clip as a handheld camera films it (:func:`shaken_frames`), registered
+        to its first frame as the pipeline registers a moving camera; the truth stays in the
+        first frame's (the still clip's) coordinates, where the frames are then fitted.
+        """
         background = self.clip.scene.background.astype(np.float64) / 255
-        for truth, frame in zip(self.clip.truth, self.clip.frames, strict=True):
-            if truth.bbox is None:
+        images = shaken_frames(self.clip) if self.shaken else self.clip.frames
+        for truth, frame in zip(self.clip.truth, images, strict=True):
+            if truth.bbox is None or frame is None:
                 continue
             yield BenchmarkFrame(
                 sequence=self.name,
@@ -188,8 +199,30 @@ class SyntheticSequence:
             )
 
 
-def list_synthetic(root: Path | str, dataset: str = "synthetic") -> list[SyntheticSequence]:
-    """The clips of a set folder, in name order, named as sequences of ``dataset``."""
+def shaken_frames(clip: SyntheticClip) -> list[np.ndarray | None]:
+    """``clip``'s frames shaken by a hand (up to 6 px and 1 degree a frame, seeded by the clip;
+    the first frame held still), then registered to the first and brought into its coordinates
+    (:mod:`sfb_video.registration`), the pixels a frame does not cover taken from the clip's
+    background. None for a frame that did not register (it is not fitted, and scores 0)."""
+    size = (clip.spec.width, clip.spec.height)
+    moves = from_first(shake_transforms(len(clip.frames), size, clip.spec.seed, max_shift_px=6.0, max_turn_deg=1.0))
+    tensors = [torch.from_numpy(np.ascontiguousarray(f)).permute(2, 0, 1) for f in shake_frames(clip.frames, moves)]
+    motion = register_frames(enumerate(tensors), CameraConfig())
+    background = torch.from_numpy(np.ascontiguousarray(clip.scene.background)).permute(2, 0, 1)
+    out: list[np.ndarray | None] = []
+    for k, image in enumerate(tensors):
+        found = motion.of(k)
+        if found is None or found.to_reference is None:
+            out.append(None)
+            continue
+        pixels, covered = warp(image, found.to_reference)
+        out.append(torch.where(covered, pixels, background).permute(1, 2, 0).numpy())
+    return out
+
+
+def list_synthetic(root: Path | str, dataset: str = "synthetic", shaken: bool = False) -> list[SyntheticSequence]:
+    """The clips of a set folder, in name order, named as sequences of ``dataset`` (``shaken``:
+    as a handheld camera films them, :func:`shaken_frames`)."""
     root = Path(root)
     if not (root / SET_FILE).is_file():
         raise SfbError(f"{root} holds no synthetic set ({SET_FILE} is missing)")
@@ -199,7 +232,14 @@ def list_synthetic(root: Path | str, dataset: str = "synthetic") -> list[Synthet
         clip = load_clip(root / name)
         sequences.append(
             SyntheticSequence(
-                dataset, name, root / name, clip.spec.num_subframes, clip.spec.num_frames, clip, dataset == "synthetic"
+                dataset,
+                name,
+                root / name,
+                clip.spec.num_subframes,
+                clip.spec.num_frames,
+                clip,
+                dataset == "synthetic",
+                shaken,
             )
         )
     return sequences

@@ -68,3 +68,23 @@ def test_the_hard_set_covers_shutters_lengths_arcs_a_bounce_faint_fence_and_cont
     for name, spec in specs.items():
         # Every clip can be drawn: its object stays in view for all its frames.
         assert make_scene(spec).trajectory is not None, name
+
+
+def test_a_shaken_set_is_registered_back_onto_the_still_clip(tmp_path: Path) -> None:
+    # 160x120 frames shaken by up to 6 px and 1 degree: registered, each is the still frame
+    # again but for interpolation, and far from the shaken one.
+    spec = ClipSpec(shape="ball", width=160, height=120, num_frames=4, size_px_range=(14.0, 16.0), seed=3)
+    ensure_set(tmp_path / "set", {"ball": spec}, quiet=True)
+    (still,) = list_synthetic(tmp_path / "set")
+    (shaken,) = list_synthetic(tmp_path / "set", shaken=True)
+    from sfb_video.synth.shake import from_first, shake_frames, shake_transforms
+
+    moves = from_first(shake_transforms(4, (160, 120), 3, max_shift_px=6.0, max_turn_deg=1.0))
+    moved = shake_frames(still.clip.frames, moves).astype(np.float64) / 255
+    for a, b, k in zip(still.frames(), shaken.frames(), range(4), strict=True):
+        assert a.index == b.index and a.box == b.box
+        inner = (slice(8, -8), slice(8, -8))
+        error = np.abs(a.image - b.image)[inner].mean()
+        assert error < 0.02  # measured 0.009-0.011 (the shaken frames: 0.04-0.08): interpolation
+        if k > 0:
+            assert np.abs(moved[k] - b.image)[inner].mean() > 3 * error
