@@ -159,3 +159,26 @@ def test_a_registered_8_bit_clip_over_a_float_background_image_stays_in_range() 
     for f in fixed_background(registered(frames, motion), background):
         assert f.pixels.dtype == torch.float32 and float(f.pixels.max()) <= 1.0
         assert float((f.pixels - f.background_pixels).abs().mean()) < 0.03
+
+
+def test_stabilised_export_shows_the_reference_view(runs: Runs, tmp_path: Path) -> None:
+    # --stabilised: away from the object, a sub-frame is the reference's (the still) view.
+    import shutil
+
+    from sfb_video.cli import main
+
+    folder = tmp_path / "run"
+    shutil.copytree(runs.shaken, folder)
+    assert main(["export", str(folder), "--stabilised", "--quiet"]) == 0
+    n = runs.config.video.tsr
+    with av.open(str(folder / "tsr.mp4")) as container:
+        subframes = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    k = max(range(1, len(runs.clip.frames)), key=lambda i: float(np.linalg.norm(runs.moves[i][:2, 2])))
+    shaken = shake_frames(runs.clip.frames, runs.moves)[k].astype(np.float64)
+    still = runs.clip.frames[k].astype(np.float64)
+    sub = subframes[k * n].astype(np.float64)
+    away = np.ones(still.shape[:2], bool)
+    x, y, w, h = runs.clip.truth[k].bbox
+    away[max(0, y - 20) : y + h + 20, max(0, x - 20) : x + w + 20] = False
+    away[:10], away[-10:], away[:, :10], away[:, -10:] = False, False, False, False
+    assert np.abs(sub - still)[away].mean() < 0.5 * np.abs(sub - shaken)[away].mean()
