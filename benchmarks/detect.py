@@ -129,9 +129,9 @@ def score_frames(
         size = (pixels.shape[2], pixels.shape[1])
         pixels = shake_frames(pixels, moves)
         truth = [[_moved_box(b, moves[0], size) for b in boxes] for boxes in truth]
-        tensors = [torch.from_numpy(np.ascontiguousarray(f.transpose(2, 0, 1))) for f in pixels]
-        motion = register_frames(enumerate(tensors), config.camera)
-    frames = (Frame(k, torch.from_numpy(np.ascontiguousarray(f.transpose(2, 0, 1)))) for k, f in enumerate(pixels))
+    frames = [Frame(k, torch.from_numpy(np.ascontiguousarray(f.transpose(2, 0, 1)))) for k, f in enumerate(pixels)]
+    if moves is not None:
+        motion = register_frames(((f.index, f.image) for f in frames), config.camera)
     stream = running_median(registered(frames, motion), config.video.background_window)
     present = found = detections = 0
     ious = []

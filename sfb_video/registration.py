@@ -72,6 +72,11 @@ class CameraMotion:
         return self.frames.get(index)
 
     @property
+    def references(self) -> int:
+        """How many reference frames the clip took (more than one: a pan past the first view)."""
+        return len({r.segment for r in self.frames.values()})
+
+    @property
     def failed(self) -> dict[int, str]:
         """The frames that could not be registered, with the reason."""
         return {i: r.note for i, r in self.frames.items() if r.to_reference is None}
@@ -221,30 +226,30 @@ def register_frames(frames: Iterable[tuple[int, torch.Tensor]], config: CameraCo
     for index, image in frames:
         found = features(image, config.features)
         textured = len(found.keypoints) >= config.min_inliers
+        anchor = None  # why this frame becomes a reference, when it does
         if reference is None or (textured and len(reference.keypoints) < config.min_inliers):
             # The first frame, or one with texture after a reference without (a fade from black).
-            reference, segment, previous, failures = found, segment + 1, (found, np.eye(3)), 0
-            motion.frames[index] = Registration(index, np.eye(3), segment)
-            continue
-        to_reference, note = match(found, reference, config.min_inliers)
-        if to_reference is None and previous is not None:
-            step, _ = match(found, previous[0], config.min_inliers)
-            if step is not None:
-                to_reference, note = previous[1] @ step, "chained"
-        if to_reference is None and textured and failures >= 1:
-            # Two textured frames in a row that match nothing before them: a cut to a new view.
-            reference, segment, previous, failures = found, segment + 1, (found, np.eye(3)), 0
-            motion.frames[index] = Registration(index, np.eye(3), segment, "new reference after a cut")
-            continue
-        if to_reference is None:
-            failures += 1
-            motion.frames[index] = Registration(index, None, segment, f"camera registration failed: {note}")
-            continue
+            anchor = ""
+        else:
+            to_reference, note = match(found, reference, config.min_inliers)
+            if to_reference is None and previous is not None:
+                step, _ = match(found, previous[0], config.min_inliers)
+                if step is not None:
+                    to_reference, note = previous[1] @ step, "chained"
+            if to_reference is not None:
+                to_reference = refine(found, reference, to_reference)
+                if overlap(to_reference, found.size) < config.min_overlap:
+                    anchor = "new reference"  # the camera has moved on
+            elif textured and failures >= 1:
+                # Two textured frames in a row that match nothing before them: a cut to a new view.
+                anchor = "new reference after a cut"
+            else:
+                failures += 1
+                motion.frames[index] = Registration(index, None, segment, f"camera registration failed: {note}")
+                continue
+        if anchor is not None:
+            reference, segment, to_reference, note = found, segment + 1, np.eye(3), anchor
         failures = 0
-        to_reference = refine(found, reference, to_reference)
-        if overlap(to_reference, found.size) < config.min_overlap:
-            # The camera has moved on: this frame is the reference of what follows.
-            reference, segment, to_reference, note = found, segment + 1, np.eye(3), "new reference"
         motion.frames[index] = Registration(index, to_reference, segment, note)
         previous = (found, to_reference)
     alone = Counter(r.segment for r in motion.frames.values() if r.to_reference is not None)

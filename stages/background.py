@@ -170,7 +170,7 @@ def with_backgrounds(
             coordinates first, and those that did not register are left out.
     """
     stream = registered(read_frames(path, frames), motion)
-    if motion is not None and len({r.segment for r in motion.frames.values()}) > 1 and background is not None:
+    if motion is not None and motion.references > 1 and background is not None:
         raise SfbError("the camera pans beyond its first view: a background image shows one view; leave it out")
     if background is not None:
         return timed_iter("background", fixed_background(stream, read_image(background)))
@@ -181,7 +181,7 @@ def with_backgrounds(
         ranged = (f for f in running_median(wide, config.background_window) if f.index in frames)
         return timed_iter("background", ranged)
     if config.background == "global":
-        if motion is not None and len({r.segment for r in motion.frames.values()}) > 1:
+        if motion is not None and motion.references > 1:
             raise SfbError("the camera pans beyond its first view: video.background=global needs one view; use running")
         return timed_iter(
             "background", fixed_background(stream, global_median(path, config.global_samples, frame_count, motion))

@@ -221,7 +221,7 @@ def _camera_summary(motion: CameraMotion | None) -> dict:
         return {"moving": False, "references": 1, "unregistered": {}}
     return {
         "moving": motion.moving,
-        "references": len({r.segment for r in motion.frames.values()}),
+        "references": motion.references,
         "unregistered": {str(i): note for i, note in sorted(motion.failed.items())},
     }
 

@@ -114,9 +114,11 @@ def with_neighbours(
         frame, mask = ahead.popleft()
         # A moving camera's frames of another reference, or that did not register, are not
         # this frame's neighbours: as at a clip's ends.
-        kin = [f for f in (*history, *ahead) if segment_of(f[0]) == segment_of(frame) and usable(f[0])]
-        after = [f for f in ahead if any(f is k for k in kin)]
-        earlier = [f for f in history if any(f is k for k in kin)]
+        def kin(other: tuple[FrameWithBackground, torch.Tensor]) -> bool:
+            return segment_of(other[0]) == segment_of(frame) and usable(other[0])
+
+        after = [f for f in ahead if kin(f)]
+        earlier = [f for f in history if kin(f)]
         before = [earlier[0]] if len(earlier) == 2 else []
         later = [after[1]] if len(after) == 2 else []
         if not before and not later:  # a clip of three frames or fewer
@@ -333,7 +335,7 @@ def track_and_fit(
             # A new reference frame: the track's positions were in the last one's coordinates.
             tracker.lose()
             segment = segment_of(frame)
-        if frame.registered is not None and frame.registered.failed:
+        if not usable(frame):
             tracker.lose()
             statuses.append(FrameStatus(frame.index, "failed", note=frame.registered.note))
             if report is not None:

@@ -26,7 +26,10 @@ from sfb_video.atomic import atomic_write_bytes
 from sfb_video.config import CameraConfig
 from sfb_video.errors import SfbError
 from sfb_video.evaluation.datasets import BenchmarkFrame
-from sfb_video.registration import register_frames, warp
+from sfb_video.registration import register_frames
+from sfb_video.stages.background import fixed_background
+from sfb_video.stages.register import registered, usable
+from sfb_video.stages.types import Frame
 from sfb_video.synth import ClipSpec, SyntheticClip
 from sfb_video.synth.io import load_clip, write_clip
 from sfb_video.synth.shake import from_first, shake_frames, shake_transforms
@@ -209,15 +212,8 @@ def shaken_frames(clip: SyntheticClip) -> list[np.ndarray | None]:
     tensors = [torch.from_numpy(np.ascontiguousarray(f)).permute(2, 0, 1) for f in shake_frames(clip.frames, moves)]
     motion = register_frames(enumerate(tensors), CameraConfig())
     background = torch.from_numpy(np.ascontiguousarray(clip.scene.background)).permute(2, 0, 1)
-    out: list[np.ndarray | None] = []
-    for k, image in enumerate(tensors):
-        found = motion.of(k)
-        if found is None or found.to_reference is None:
-            out.append(None)
-            continue
-        pixels, covered = warp(image, found.to_reference)
-        out.append(torch.where(covered, pixels, background).permute(1, 2, 0).numpy())
-    return out
+    paired = fixed_background(registered((Frame(k, t) for k, t in enumerate(tensors)), motion), background)
+    return [f.pixels.permute(1, 2, 0).numpy() if usable(f) else None for f in paired]
 
 
 def list_synthetic(root: Path | str, dataset: str = "synthetic", shaken: bool = False) -> list[SyntheticSequence]:
