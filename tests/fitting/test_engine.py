@@ -7,22 +7,21 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 
 from sfb_video.config import load_config
-from sfb_video.crop import make_crop
 from sfb_video.errors import DivergenceError, PoseError
 from sfb_video.evaluation.synthetic import synthetic_crop
 from sfb_video.fitting.engine import Optimisation, Step, race, seeded
 from sfb_video.fitting.frame import WarmStart, fit_frame
 from sfb_video.fitting.path import Seed
-from sfb_video.fitting.window import WindowFrame, fit_window
+from sfb_video.fitting.window import fit_window
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.synth import ClipSpec, generate_clip
+from tests.fitting.clips import window_frames
 
 RECORDED = json.loads((Path(__file__).with_name("engine_curves.json")).read_text())
 # Recorded on CPU with torch 2.13.0 before the two loops became one; the refactored engine gave
@@ -59,10 +58,6 @@ def test_a_cold_race_and_a_warm_start_give_the_recorded_losses() -> None:
     _same_curves(fit.curves, RECORDED["warm"])  # 8 of 15 steps: the plateau rule stopped it
 
 
-def _tensor(image: np.ndarray) -> torch.Tensor:
-    return torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float() / 255
-
-
 def test_a_window_race_with_a_shape_trial_and_a_searched_spin_gives_the_recorded_losses() -> None:
     overrides = ["joint.iterations=10", "joint.spin_magnitudes=[30,90]", "joint.trial_fraction=0.3"]
     config = load_config("fast", overrides)
@@ -79,13 +74,7 @@ def test_a_window_race_with_a_shape_trial_and_a_searched_spin_gives_the_recorded
         seed=1,
     )
     clip = generate_clip(spec)
-    background, frames = _tensor(clip.scene.background), []
-    for truth in clip.truth:
-        x, y, w, h = truth.bbox
-        blob = torch.zeros(spec.height, spec.width, dtype=torch.bool)
-        blob[y : y + h, x : x + w] = True
-        crop = make_crop(_tensor(clip.frames[truth.index]), background, truth.bbox, clip.camera, config.crop, blob)
-        frames.append(WindowFrame(truth.index, crop))
+    frames = window_frames(clip, config.crop)
     vertices, topology = load_prototype("sphere")
     grey = torch.full((3, config.fit.texture_size, config.fit.texture_size), 0.5)
     seeds = []

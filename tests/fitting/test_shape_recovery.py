@@ -11,9 +11,8 @@ import pytest
 import torch
 
 from sfb_video.config import load_config
-from sfb_video.crop import make_crop
 from sfb_video.fitting.path import Seed
-from sfb_video.fitting.window import JointResult, WindowFrame, fit_window
+from sfb_video.fitting.window import JointResult, fit_window
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.mesh import box_fill
 from sfb_video.geometry.prototypes import load_prototype
@@ -21,28 +20,19 @@ from sfb_video.geometry.rotation import axis_angle_to_matrix
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip
+from tests.fitting.clips import window_frames
 
 CONFIG = load_config(
     "fast", ["joint.iterations=150", "render.time_steps=8", "joint.prototypes=[sphere,capsule,box,disc,torus]"]
 )
 
 
-def _tensor(image: np.ndarray) -> torch.Tensor:
-    return torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float() / 255
-
-
 def _fit(spec: ClipSpec) -> tuple[SyntheticClip, JointResult]:
     clip = generate_clip(spec)
-    background = _tensor(clip.scene.background)
     vertices, topology = load_prototype("sphere")
     grey = torch.full((3, CONFIG.fit.texture_size, CONFIG.fit.texture_size), 0.5)
-    frames, seeds = [], []
+    frames, seeds = window_frames(clip, CONFIG.crop), []
     for truth in clip.truth:
-        x, y, w, h = truth.bbox
-        blob = torch.zeros(clip.spec.height, clip.spec.width, dtype=torch.bool)
-        blob[y : y + h, x : x + w] = True
-        crop = make_crop(_tensor(clip.frames[truth.index]), background, truth.bbox, clip.camera, CONFIG.crop, blob)
-        frames.append(WindowFrame(truth.index, crop))
         x0, dx = (torch.tensor(v, dtype=torch.float32) for v in (truth.motion.x0, truth.motion.dx))
         seeds.append(
             Seed(

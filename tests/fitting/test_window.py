@@ -11,7 +11,6 @@ import pytest
 import torch
 
 from sfb_video.config import load_config
-from sfb_video.crop import make_crop
 from sfb_video.evaluation.synthetic import score_state
 from sfb_video.fitting.frame import FitResult, fit_frame
 from sfb_video.fitting.path import Seed, measured_exposure
@@ -21,6 +20,7 @@ from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.stages.composite import fit_quality
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip
+from tests.fitting.clips import window_frames
 
 TRUE_EXPOSURE = 0.7
 CONFIG = load_config("fast", ["joint.iterations=150", "joint.prototypes=[]"])
@@ -29,10 +29,6 @@ CONFIG = load_config("fast", ["joint.iterations=150", "joint.prototypes=[]"])
 SPIN = load_config(
     "fast", ["joint.iterations=150", "joint.prototypes=[]", "render.time_steps=8", "joint.spin_magnitudes=[30,60,90]"]
 )
-
-
-def _tensor(image: np.ndarray) -> torch.Tensor:
-    return torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float() / 255
 
 
 @pytest.fixture(scope="module")
@@ -53,14 +49,7 @@ def clip() -> SyntheticClip:
 
 
 def _frames(clip: SyntheticClip) -> list[WindowFrame]:
-    background, frames = _tensor(clip.scene.background), []
-    for truth in clip.truth:
-        x, y, w, h = truth.bbox
-        blob = torch.zeros(clip.spec.height, clip.spec.width, dtype=torch.bool)
-        blob[y : y + h, x : x + w] = True
-        crop = make_crop(_tensor(clip.frames[truth.index]), background, truth.bbox, clip.camera, CONFIG.crop, blob)
-        frames.append(WindowFrame(truth.index, crop))
-    return frames
+    return window_frames(clip, CONFIG.crop)
 
 
 def _seeds(clip: SyntheticClip, depth_scale: list[float], travel: float = 1.0) -> list[Seed]:

@@ -98,20 +98,26 @@ def test_the_trajectory_positions_are_in_each_frames_own_pixels(runs: Runs) -> N
     assert statistics.median(own) < 0.25 * 2 * statistics.mean(t.radius_px for t in runs.clip.truth)
 
 
-def test_the_tsr_video_shows_each_frame_as_filmed(runs: Runs) -> None:
-    # Away from the object, a sub-frame is the shaken frame itself, not the reference's view.
+def _away_from_the_object(runs: Runs, tsr: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The most moved frame's first sub-frame in ``tsr``, the same frame shaken and held still,
+    each (P, 3) over the pixels away from the object and the frame's edges."""
     n = runs.config.video.tsr
-    with av.open(str(runs.shaken / "tsr.mp4")) as container:
-        first = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    with av.open(str(tsr)) as container:
+        subframes = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
     k = max(range(1, len(runs.clip.frames)), key=lambda i: float(np.linalg.norm(runs.moves[i][:2, 2])))
     shaken = shake_frames(runs.clip.frames, runs.moves)[k].astype(np.float64)
     still = runs.clip.frames[k].astype(np.float64)
-    sub = first[k * n].astype(np.float64)
-    away = np.ones(shaken.shape[:2], bool)
+    away = np.ones(still.shape[:2], bool)
     x, y, w, h = runs.clip.truth[k].bbox
     away[max(0, y - 20) : y + h + 20, max(0, x - 20) : x + w + 20] = False
     away[:10], away[-10:], away[:, :10], away[:, -10:] = False, False, False, False
-    assert np.abs(sub - shaken)[away].mean() < 0.5 * np.abs(sub - still)[away].mean()
+    return subframes[k * n].astype(np.float64)[away], shaken[away], still[away]
+
+
+def test_the_tsr_video_shows_each_frame_as_filmed(runs: Runs) -> None:
+    # Away from the object, a sub-frame is the shaken frame itself, not the reference's view.
+    sub, shaken, still = _away_from_the_object(runs, runs.shaken / "tsr.mp4")
+    assert np.abs(sub - shaken).mean() < 0.5 * np.abs(sub - still).mean()
 
 
 def _pan_frames(count: int, blank: int | None = None) -> list:
@@ -170,15 +176,5 @@ def test_stabilised_export_shows_the_reference_view(runs: Runs, tmp_path: Path) 
     folder = tmp_path / "run"
     shutil.copytree(runs.shaken, folder)
     assert main(["export", str(folder), "--stabilised", "--quiet"]) == 0
-    n = runs.config.video.tsr
-    with av.open(str(folder / "tsr.mp4")) as container:
-        subframes = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
-    k = max(range(1, len(runs.clip.frames)), key=lambda i: float(np.linalg.norm(runs.moves[i][:2, 2])))
-    shaken = shake_frames(runs.clip.frames, runs.moves)[k].astype(np.float64)
-    still = runs.clip.frames[k].astype(np.float64)
-    sub = subframes[k * n].astype(np.float64)
-    away = np.ones(still.shape[:2], bool)
-    x, y, w, h = runs.clip.truth[k].bbox
-    away[max(0, y - 20) : y + h + 20, max(0, x - 20) : x + w + 20] = False
-    away[:10], away[-10:], away[:, :10], away[:, -10:] = False, False, False, False
-    assert np.abs(sub - still)[away].mean() < 0.5 * np.abs(sub - shaken)[away].mean()
+    sub, shaken, still = _away_from_the_object(runs, folder / "tsr.mp4")
+    assert np.abs(sub - still).mean() < 0.5 * np.abs(sub - shaken).mean()
