@@ -112,6 +112,7 @@ def with_neighbours(
 
     def emit() -> tuple[FrameWithBackground, torch.Tensor, list[Neighbour]]:
         frame, mask = ahead.popleft()
+
         # A moving camera's frames of another reference, or that did not register, are not
         # this frame's neighbours: as at a clip's ends.
         def kin(other: tuple[FrameWithBackground, torch.Tensor]) -> bool:
