@@ -259,6 +259,10 @@ class JointConfig(_Checked):
     shape_margin: float = bounded(0.05, ge=0, le=0.5)
     """A prototype other than the sphere is chosen only where its residual is this fraction
     below the sphere's."""
+    shape_race: float = bounded(0.0, ge=0, le=1)
+    """The trial's prototypes within this fraction of the best one's residual (after
+    ``shape_margin``) start a fit each, raced for ``trial_fraction`` of the steps on their L_I;
+    0: the best alone."""
     refine: str = one_of("pose", ("off", "texture", "pose"))
     """After a window's joint fit, refine each of its frames from it, the shared mesh held:
     ``texture`` fits the frame's own texture on the window's trajectory, ``pose`` its texture

@@ -128,7 +128,8 @@ class JointResult:
         bounce: the window time of the bounce model's break, else None.
         trials: per candidate raced (``seed:<prototype>``; ``spin:<prototype>``, the seed's
             prototype with a searched spin), its mean L_I after the trial steps; empty when one
-            candidate ran (``shape:<prototype>``, the shape that the footprint's trial chose).
+            candidate ran (``shape:<prototype>``, the shape that the footprint's trial chose,
+            raced against the shapes within ``joint.shape_race`` of it where there are any).
         shapes: per prototype of the footprint's trial, its coarse texture's residual over the
             sphere's (:func:`trial_shapes`).
         refined: per frame refined after the fit, its own texture and pose (:func:`refine_frames`).
@@ -408,10 +409,10 @@ def score_shape(
 
 def trial_shapes(
     window: WindowStart, names: tuple[str, ...], render_config: RenderConfig
-) -> tuple[ShapedStart, SpinScore, dict[str, float]]:
-    """The prototype whose start at the window's footprint explains its frames best, each at
-    the spin a coarse search finds for it, its score there, and every prototype's residual
-    relative to the sphere's.
+) -> tuple[list[tuple[ShapedStart, SpinScore]], dict[str, float]]:
+    """The prototypes whose starts at the window's footprint explain its frames best, each at
+    the spin a coarse search finds for it with its score there, best first, and every
+    prototype's residual relative to the sphere's.
 
     Each shape gets its own spin: a box, a pen or a ring explains the frames only once it turns
     as the object did, and at one spin for all (the seeds') the trial chose a box for a ball and
@@ -420,6 +421,10 @@ def trial_shapes(
     a ball's streaks are explained about as well by a disc seen face on or a short capsule, and
     the trial chose them for balls), and a prototype other than the sphere must beat it by
     ``joint.shape_margin``. Prototypes left out have no residual.
+
+    The best comes first; the others within ``joint.shape_race`` of it follow, for the window's
+    fit to race: a box's capsule and a key's torus stood within 10% of the sphere, and the
+    interpolation of a registered (shaken) clip's frames alone flipped the choice.
     """
     config = window.config
     outline = window.footprint()
@@ -443,8 +448,11 @@ def trial_shapes(
             if scores[name].residual < SHAPE_PRUNE * best_near or name == "sphere":
                 scores[name] = search(start, coarse, config.spin_refine[:1])
     sphere = scores["sphere"].residual
-    best = min(scores, key=lambda n: scores[n].residual / (1.0 if n == "sphere" else 1 - config.shape_margin))
-    return starts[best], scores[best], {name: s.residual / max(sphere, 1e-12) for name, s in scores.items()}
+    weighed = {n: s.residual / (1.0 if n == "sphere" else 1 - config.shape_margin) for n, s in scores.items()}
+    ranked = sorted(weighed, key=weighed.__getitem__)
+    near_best = [n for n in ranked if weighed[n] <= (1 + config.shape_race) * weighed[ranked[0]]]
+    contenders = [(starts[n], scores[n]) for n in near_best or ranked[:1]]
+    return contenders, {name: s.residual / max(sphere, 1e-12) for name, s in scores.items()}
 
 
 def searched_spin(
@@ -496,10 +504,10 @@ def fit_window(
             from what the seeds measure (:func:`measured_exposure`) or, without, from this.
         prototypes: the prototypes the footprint's trial chooses among (:func:`trial_shapes`),
             without ``shape_from`` only; the chosen one, its spin refined (``config.spin_refine``)
-            and with its texture, starts the fit alone. Without a trial, the best seed's
-            prototype at the spin searched on it (``config.spin_magnitudes``) competes with the
-            best seed's mesh for the first ``config.trial_fraction`` of the steps, and the
-            lowest mean L_I goes on.
+            and with its texture, starts the fit (alone, or raced against the trial's near
+            ties). Without a trial, the best seed's prototype at the spin searched on it
+            (``config.spin_magnitudes``) competes with the best seed's mesh for the first
+            ``config.trial_fraction`` of the steps, and the lowest mean L_I goes on.
         shape_from: the seed whose mesh, texture and rotation the fit starts from (default: the
             seed with the lowest L_I); the previous window of a track hands its shape on so.
         on_step: called with (step, joint loss terms) after every step of the kept candidate
@@ -514,26 +522,25 @@ def fit_window(
     searching = shape_from is None and bool(config.spin_magnitudes) and fit_config.max_rotation_deg > 0
     shapes: dict[str, float] = {}
     with seeded(fit_config.seed), deterministic(window.device):
-        start, kind, spin = None, "spin", None
+        # Spins are searched on the seeds' path, not on the one of a trial: a trial from a wrong
+        # spin bends the path to fit it, and the search then finds a wrong spin that explains the
+        # frames better than the true one on the seeds' path (40 degrees off against 4).
         if prototypes and shape_from is None:
-            # The shape the streaks choose starts the fit alone: against the single-frame fits'
-            # mesh, fitted for hundreds of steps to each frame, no fresh start wins a short race
+            # The shapes the streaks choose start the fit without the seeds' mesh: against it,
+            # fitted for hundreds of steps to each frame, no fresh start wins a short race
             # (measured on `synthetic`: the seeds won every one, a box staying a torus).
-            start, spin, shapes = trial_shapes(window, prototypes, render_config)
-            kind = "shape"
-            if searching:
-                spin = searched_spin(window, start, render_config, around=spin)
+            contenders, shapes = trial_shapes(window, prototypes, render_config)
             fits = {}
+            for start, spin in contenders:
+                if searching:
+                    spin = searched_spin(window, start, render_config, around=spin)
+                fits[f"shape:{start.name}"] = window_candidate(window, start, spin, rigid=True)
         else:
             fits = {f"seed:{window.best_seed.prototype}": window_candidate(window, None)}
             if searching:
                 start = seed_prototype(window)
                 spin = searched_spin(window, start, render_config)
-        if start is not None:
-            # On the seeds' path, not on the one of a trial: a trial from a wrong spin bends the
-            # path to fit it, and the search then finds a wrong spin that explains the frames
-            # better than the true one on the seeds' path (40 degrees off against 4).
-            fits[f"{kind}:{start.name}"] = window_candidate(window, start, spin, rigid=kind == "shape")
+                fits[f"spin:{start.name}"] = window_candidate(window, start, spin)
         trial = max(1, round(config.trial_fraction * config.iterations)) if len(fits) > 1 else None
         key, trials = race(fits, trial, on_step)
     fit = fits[key]
