@@ -37,7 +37,7 @@ from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.results import FrameResult, load_result
-from sfb_video.run_folder import frame_path
+from sfb_video.run_folder import FRAMES
 from sfb_video.stages.background import with_backgrounds
 from sfb_video.stages.export import render_frame
 from sfb_video.stages.process import ProcessOptions, process_clip
@@ -131,11 +131,13 @@ def ghost_scenario(spec: ClipSpec, config: Config) -> tuple[dict[str, float], di
         write_clip_video(clip, video)
         process_clip(ProcessOptions(video=video, out=out, masks="diff"), config, torch.device("cpu"), quiet=True)
         for frame in with_backgrounds(video, config.video, len(clip.frames)):
-            path, truth = frame_path(out, frame.index), clip.truth[frame.index]
+            # One object: its tracks are the track it was lost and found again as.
+            paths = sorted((out / FRAMES).glob(f"frame_{frame.index:05d}_track_*.pt"))
+            path, truth = (paths[0] if paths else None), clip.truth[frame.index]
             if not truth.present:
                 continue
             halves.add(frame, partial_fit(clip, frame.index, 0.5), truth, clip.camera, n, config)
-            if path.is_file():
+            if path is not None:
                 fits.add(frame, load_result(path), truth, clip.camera, n, config)
     return fits.row(len(clip.frames)), halves.row(len(clip.frames))
 

@@ -49,17 +49,17 @@ def _join_px(a: Motion, b: Motion, frames: int, exposure: float, camera: Pinhole
     return float((uv[1] - uv[0]).norm())
 
 
-def measure(results: dict[int, FrameResult], boxes: dict, tracks: dict, exposure: float, camera: PinholeCamera) -> dict:
-    """Median travel / streak and join gap (px) of a run's results."""
+def measure(results: dict[tuple[int, int], FrameResult], boxes: dict, exposure: float, camera: PinholeCamera) -> dict:
+    """Median travel / streak and join gap (px) of a run's results, by (frame, track)."""
     ratios, gaps = [], []
-    for i, r in sorted(results.items()):
-        _, _, w, h = boxes[i]
+    for (i, t), r in sorted(results.items()):
+        _, _, w, h = boxes[i, t]
         streak = max(w, h) - min(w, h)
         if streak > 0:
             ratios.append(_travel_px(r.state.motion, camera) / streak)
-        if i + 1 in results and tracks[i] == tracks[i + 1]:
+        if (i + 1, t) in results:
             # The exposure fraction the result was fitted with: the joint fit's own where learnt.
-            gaps.append(_join_px(r.state.motion, results[i + 1].state.motion, 1, exposure, camera))
+            gaps.append(_join_px(r.state.motion, results[i + 1, t].state.motion, 1, exposure, camera))
     return {
         "travel_ratio": statistics.median(ratios) if ratios else float("nan"),
         "join_px": statistics.median(gaps) if gaps else float("nan"),
@@ -86,11 +86,10 @@ def main() -> None:
             seconds = time.perf_counter() - start
             _, statuses = read_run(out)
             camera = clip_camera(probe(clip, config.video), config, None)
-            boxes = {s.index: s.box for s in statuses}
-            tracks = {s.index: s.track for s in statuses}
+            boxes = {(s.index, s.track): s.box for s in statuses}
             joint_e = summary["joint"]["exposure_fraction"] or config.video.exposure_fraction
-            before = measure(load_results(out), boxes, tracks, config.video.exposure_fraction, camera)
-            after = measure(final_results(out), boxes, tracks, joint_e, camera)
+            before = measure(load_results(out), boxes, config.video.exposure_fraction, camera)
+            after = measure(final_results(out), boxes, joint_e, camera)
         print(
             f"| {clip.name} | {summary['frames_fitted']} | {before['travel_ratio']:.2f} | {after['travel_ratio']:.2f} "
             f"| {before['join_px']:.1f} | {after['join_px']:.1f} | {joint_e:.2f} | {seconds:.0f} |",

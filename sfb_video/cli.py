@@ -107,6 +107,11 @@ def clip_arguments() -> argparse.ArgumentParser:
     clip.add_argument("--object-diameter", type=float, help="the object's diameter in metres, for metric output")
     clip.add_argument("--focal-px", type=float, help="focal length in pixels (default: from camera.fov_y_deg)")
     clip.add_argument("--stabilised", action="store_true", help=STABILISED)
+    clip.add_argument(
+        "--max-objects",
+        type=at_least(1),
+        help="track at most N objects at once (default: video.max_objects, 0: every fast mover)",
+    )
     return clip
 
 
@@ -212,18 +217,18 @@ def _print_summary(out: Path, summary: dict) -> None:
     )
     rows = [f for f in summary["frames"] if f["status"] == "fitted"]
     if rows:
-        print("| frame | start | prototype | L_I | explained | s | speed (sizes/s) |")
-        print("|---:|---|---|---:|---:|---:|---:|")
-        for f in rows:
+        print("| track | frame | start | prototype | L_I | explained | s | speed (sizes/s) |")
+        print("|---:|---:|---|---|---:|---:|---:|---:|")
+        for f in sorted(rows, key=lambda f: (f["track"], f["index"])):
             print(
-                f"| {f['index']} | {f['start']} | {f['prototype']} | {f['losses']['image']:.4f} | "
+                f"| {f['track']} | {f['index']} | {f['start']} | {f['prototype']} | {f['losses']['image']:.4f} | "
                 f"{f['explained']:.2f} | {f['seconds']:.1f} | {f['speed_sizes_per_s']:.1f} |"
             )
     others = summary["frames_with_other_movers"]
     if others:
         print(
-            f"note: {others} frame(s) showed another moving object beside the tracked one; one object is "
-            "tracked (the one its track predicts, else the largest); see the frames' notes in summary.json"
+            f"note: {others} frame(s) showed more moving objects than video.max_objects (--max-objects) "
+            "lets be tracked; see the frames' notes in summary.json"
         )
     unexplained = summary["unexplained_frames"]
     if unexplained:
@@ -239,6 +244,7 @@ def _print_summary(out: Path, summary: dict) -> None:
 def _process_config(args: argparse.Namespace) -> Config:
     """The config of ``process`` and ``batch``: the preset, ``--set`` and ``--tsr``."""
     overrides = list(args.set) + ([f"video.tsr={args.tsr}"] if args.tsr is not None else [])
+    overrides += [f"video.max_objects={args.max_objects}"] if args.max_objects is not None else []
     return load_config(args.config, overrides + (["camera.stabilised=true"] if args.stabilised else []))
 
 
@@ -338,7 +344,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     with open_export(Path(args.run)) as run:
         config = load_config(run.work / CONFIG, args.set + (["camera.stabilised=true"] if args.stabilised else []))
-        fitted = saved_frames(run.work)
+        fitted = {index for index, _ in saved_frames(run.work)}
         missing = [f for f in args.novel_views or [] if f not in fitted]
         if missing:
             raise SfbError(f"frame {missing[0]} was not fitted; fitted frames: {sorted(fitted)}")

@@ -53,7 +53,8 @@ def demo_config(config: Config) -> Config:
 def score_run(folder: Path, clip: SyntheticClip, config: Config) -> dict[int, FrameScore]:
     """Score every fitted frame of a run, as its outputs show it, against the clip's truth, in
     the run's time direction."""
-    return {i: score_state(r.state, clip, i, config, may_flip=False) for i, r in final_results(folder).items()}
+    results = final_results(folder)
+    return {i: score_state(r.state, clip, i, config, may_flip=False) for (i, _), r in sorted(results.items())}
 
 
 def score_table(scores: dict[int, FrameScore]) -> str:

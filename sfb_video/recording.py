@@ -20,7 +20,8 @@ Entity layout (what each path holds):
                                    the world origin.
     world/camera/image             the input frame (JPEG), shown in the pinhole's 2D view and on
                                    its frustum in 3D; static AnnotationContext for the mask.
-    world/camera/image/detection   Boxes2D: the detected object box; Clear on frames without one.
+    world/camera/image/detection   Boxes2D: the detected objects' boxes, labelled by track; Clear on
+                                   frames without one.
     world/camera/image/mask        SegmentationImage: the detection mask (class 1 = "object",
                                    uncompressed); Clear on frames without one.
     world/camera/image/subframe_mask  SegmentationImage, subframe timeline only: the sub-frame mask
@@ -28,16 +29,17 @@ Entity layout (what each path holds):
                                    fit's time order; only in runs with such masks.
     masks                          TextLog: the masks each frame's fit used ("diff", or "defmo"
                                    and whether DeFMO's order was kept or reversed).
-    world/object                   Mesh3D: the fitted textured mesh in object coordinates (unit
-                                   scale), and Transform3D (translation + mat3x3): its pose, object
-                                   -> camera coordinates.
-    world/trajectory               LineStrips3D + Points3D: the object's 3D positions so far.
+    world/track_XX/object          Mesh3D: track XX's fitted textured mesh in object coordinates
+                                   (unit scale), and Transform3D (translation + mat3x3): its pose,
+                                   object -> camera coordinates.
+    world/trajectory/track_XX      LineStrips3D + Points3D: track XX's 3D positions so far.
     background                     the estimated background (JPEG).
     reconstruction                 I_hat, the fitted object blurred over the background (JPEG).
     tsr                            the temporal super-resolution sub-frames (JPEG), one per
                                    sub-frame time step.
-    losses/<name>                  Scalars: the final value of each loss of a frame's fit.
-    fit/<name>                     Scalars: each loss along the optimisation of a frame's fit.
+    losses/track_XX/<name>         Scalars: the final value of each loss of a frame's fit.
+    fit/track_XX/<name>            Scalars: each loss along the optimisation of a frame's fit.
+    quality/track_XX/explained     Scalars: how much of the frame's difference the fit explains.
 
 Timelines (all sequences):
 
@@ -168,19 +170,26 @@ class Recorder(AtomicOutput):
         self._log("background", _jpeg(background))
 
     @timed("recording")
-    def log_detection(self, index: int, box: Box | None, mask: torch.Tensor | None) -> None:
-        """Log the detection of frame ``index``.
+    def log_detection(self, index: int, boxes: dict[int, Box], mask: torch.Tensor | None) -> None:
+        """Log the detections of frame ``index``.
 
         Args:
-            box: (x, y, w, h) in pixels, or None (clears the previous frame's box).
+            boxes: per track, its object's (x, y, w, h) in pixels; empty clears the previous
+                frame's boxes.
             mask: (H, W) bool or float (> 0.5 is the object), or None (clears the previous mask).
         """
         self._at(frame=index)
-        if box is None:
+        if not boxes:
             self._log("world/camera/image/detection", rr.Clear(recursive=False))
         else:
-            x, y, w, h = box
-            self._log("world/camera/image/detection", rr.Boxes2D(mins=[(x, y)], sizes=[(w, h)]))
+            self._log(
+                "world/camera/image/detection",
+                rr.Boxes2D(
+                    mins=[b[:2] for b in boxes.values()],
+                    sizes=[b[2:] for b in boxes.values()],
+                    labels=[f"track {t}" for t in boxes],
+                ),
+            )
         if mask is None:
             self._log("world/camera/image/mask", rr.Clear(recursive=False))
         else:
@@ -189,26 +198,14 @@ class Recorder(AtomicOutput):
             self._log("world/camera/image/mask", rr.SegmentationImage(ids, opacity=0.5))
 
     @timed("recording")
-    def log_fit(
-        self,
-        index: int,
-        state: ObjectState,
-        reconstruction: torch.Tensor,
-        subframes: Sequence[torch.Tensor],
-        losses: dict[str, float],
-        curve: list[dict[str, float]],
-    ) -> None:
-        """Log the fit of frame ``index``.
+    def log_subframes(self, index: int, reconstruction: torch.Tensor, subframes: Sequence[torch.Tensor]) -> None:
+        """Log frame ``index``'s rendering, every object's in one.
 
         Args:
-            state: the fitted object; its mesh is logged with its pose at mid-exposure on the frame
-                timeline and at each sub-frame's mid-time on the subframe timeline.
             reconstruction: (3, H, W) full-frame I_hat in [0, 1].
             subframes: n full-frame TSR sub-frames (3, H, W) in [0, 1] (a tensor (n, 3, H, W) or
                 a sequence that makes them one at a time); n sets the subframe timeline's step
                 for this frame (values ``index * n + k``).
-            losses: the final value of each loss.
-            curve: one dict (loss name -> value) per optimisation step.
         """
         self._check_image(reconstruction, "reconstruction")
         if isinstance(subframes, torch.Tensor):
@@ -216,25 +213,51 @@ class Recorder(AtomicOutput):
         n = len(subframes)
         if n < 1:
             raise SfbError("subframes must hold at least one sub-frame")
-        device = state.motion.x0.device
-        mid_rot, mid_pos = state.motion.at(torch.full((1,), 0.5, device=device))
-        sub_rot, sub_pos = state.motion.at(exposure_times(n, device))
-
         self._at(frame=index, subframe=index * n)
         self._log("reconstruction", _jpeg(reconstruction))
-        self._log("world/object", _mesh3d(state))
-
-        self._at(frame=index)
-        self._log("world/object", _transform(mid_rot[0], mid_pos[0]))
-        for name, value in losses.items():
-            self._log(f"losses/{rr.escape_entity_path_part(name)}", rr.Scalars(float(value)))
-
         for k in range(n):
             sub = subframes[k]
             self._check_image(sub, "subframe")
             self._at(subframe=index * n + k)
             self._log("tsr", _jpeg(sub))
-            self._log("world/object", _transform(sub_rot[k], sub_pos[k]))
+
+    @timed("recording")
+    def log_fit(
+        self,
+        index: int,
+        track: int,
+        state: ObjectState,
+        losses: dict[str, float],
+        curve: list[dict[str, float]],
+        n: int,
+    ) -> None:
+        """Log the fit of track ``track``'s object in frame ``index`` (under ``world/track_XX``,
+        ``losses/track_XX`` and ``fit/track_XX``).
+
+        Args:
+            state: the fitted object; its mesh is logged with its pose at mid-exposure on the frame
+                timeline and at each of the ``n`` sub-frames' mid-times on the subframe timeline.
+            losses: the final value of each loss.
+            curve: one dict (loss name -> value) per optimisation step.
+        """
+        if n < 1:
+            raise SfbError("subframes must hold at least one sub-frame")
+        device = state.motion.x0.device
+        mid_rot, mid_pos = state.motion.at(torch.full((1,), 0.5, device=device))
+        sub_rot, sub_pos = state.motion.at(exposure_times(n, device))
+        entity, part = track_entity(track), f"track_{track:02d}"
+
+        self._at(frame=index, subframe=index * n)
+        self._log(entity, _mesh3d(state))
+
+        self._at(frame=index)
+        self._log(entity, _transform(mid_rot[0], mid_pos[0]))
+        for name, value in losses.items():
+            self._log(f"losses/{part}/{rr.escape_entity_path_part(name)}", rr.Scalars(float(value)))
+
+        for k in range(n):
+            self._at(subframe=index * n + k)
+            self._log(entity, _transform(sub_rot[k], sub_pos[k]))
 
         # One columnar call per loss instead of a log call per step and loss: a fit runs hundreds
         # of steps. send_columns ignores the stream's current time, so both indexes are explicit.
@@ -242,17 +265,17 @@ class Recorder(AtomicOutput):
             steps = [s for s, row in enumerate(curve) if name in row]
             self._check_open()
             self._rec.send_columns(
-                f"fit/{rr.escape_entity_path_part(name)}",
+                f"fit/{part}/{rr.escape_entity_path_part(name)}",
                 indexes=[rr.TimeColumn(STEP, sequence=steps), rr.TimeColumn(FRAME, sequence=[index] * len(steps))],
                 columns=rr.Scalars.columns(scalars=[float(curve[s][name]) for s in steps]),
                 strict=True,
             )
 
-    def log_quality(self, index: int, explained: float) -> None:
-        """Log how much of frame ``index``'s difference from its background the fit explains
-        (:func:`sfb_video.stages.composite.explained`) as ``quality/explained``."""
+    def log_quality(self, index: int, track: int, explained: float) -> None:
+        """Log how much of frame ``index``'s difference from its background track ``track``'s fit
+        explains (:func:`sfb_video.stages.composite.explained`) as ``quality/track_XX/explained``."""
         self._at(frame=index)
-        self._log("quality/explained", rr.Scalars(float(explained)))
+        self._log(f"quality/track_{track:02d}/explained", rr.Scalars(float(explained)))
 
     @timed("recording")
     def log_masks(self, index: int, source: str, box: Box, masks: torch.Tensor | None, n: int) -> None:
@@ -290,8 +313,9 @@ class Recorder(AtomicOutput):
         self._masks_shown = True
 
     @timed("recording")
-    def log_trajectory(self, points: np.ndarray) -> None:
-        """Log the (P, 3) 3D positions so far at the last frame logged, replacing the previous ones."""
+    def log_trajectory(self, points: np.ndarray, track: int = 0) -> None:
+        """Log track ``track``'s (P, 3) 3D positions so far at the last frame logged, replacing
+        the previous ones."""
         if self._frame is None:
             raise SfbError("log a frame before the trajectory: it is logged at the current frame")
         points = np.asarray(points, dtype=np.float32)
@@ -299,10 +323,10 @@ class Recorder(AtomicOutput):
             raise SfbError(f"trajectory points must have shape (*, 3), got {points.shape}")
         self._at(frame=self._frame)
         if len(points) == 0:
-            self._log("world/trajectory", rr.Clear(recursive=False))
+            self._log(f"world/trajectory/track_{track:02d}", rr.Clear(recursive=False))
             return
         self._log(
-            "world/trajectory",
+            f"world/trajectory/track_{track:02d}",
             rr.LineStrips3D([points], radii=TRAJECTORY_LINE_RADIUS),
             rr.Points3D(points, radii=TRAJECTORY_POINT_RADIUS),
         )
@@ -518,6 +542,11 @@ def _write_all(fd: int, data: bytes) -> None:
 def _jpeg(image: torch.Tensor) -> rr.EncodedImage | rr.Image:
     """A (3, H, W) image in [0, 1] as a JPEG-encoded rerun image."""
     return rr.Image(to_uint8(image), color_model="RGB").compress(jpeg_quality=JPEG_QUALITY)
+
+
+def track_entity(track: int) -> str:
+    """The entity of track ``track``'s object: its mesh and pose."""
+    return f"world/track_{track:02d}/object"
 
 
 def _transform(rotation: torch.Tensor, position: torch.Tensor) -> rr.Transform3D:

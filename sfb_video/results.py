@@ -50,6 +50,8 @@ class FrameResult:
         masks: (N, h, w) the sub-frame masks the fit used, in this result's time order, or None
             for the difference mask.
         masks_reversed: whether that order is the reverse of the masks' own (DeFMO's).
+        track: the number of the object's track (several objects in one frame are several
+            results, one per track).
     """
 
     index: int
@@ -65,6 +67,12 @@ class FrameResult:
     mask_source: str = "diff"
     masks: torch.Tensor | None = None
     masks_reversed: bool = False
+    track: int = 0
+
+    @property
+    def key(self) -> tuple[int, int]:
+        """(frame index, track): what names this result in a run folder."""
+        return self.index, self.track
 
     def reversed(self) -> FrameResult:
         """The same fit with its motion (and its sub-frame masks) run backwards in time."""
@@ -101,11 +109,12 @@ def save_result(folder: Path, result: FrameResult) -> None:
         # 8 bits are plenty for a soft mask and keep a frame's file small.
         "masks": None if result.masks is None else (result.masks.detach().cpu() * 255).round().to(torch.uint8),
         "masks_reversed": result.masks_reversed,
+        "track": result.track,
     }
     buffer = io.BytesIO()
     torch.save(record, buffer)
     ensure_folder(folder / FRAMES)
-    atomic_write_bytes(frame_path(folder, result.index), buffer.getvalue())
+    atomic_write_bytes(frame_path(folder, result.index, result.track), buffer.getvalue())
 
 
 def load_result(path: Path) -> FrameResult:
@@ -128,15 +137,16 @@ def load_result(path: Path) -> FrameResult:
             mask_source=r.get("mask_source", "diff"),
             masks=None if r.get("masks") is None else r["masks"].float() / 255,
             masks_reversed=bool(r.get("masks_reversed", False)),
+            track=int(r.get("track", 0)),
         )
     except (OSError, RuntimeError, KeyError, TypeError, EOFError) as exc:
         raise SfbError(f"cannot read the frame result {path}: {exc}") from None
 
 
-def load_results(folder: Path) -> dict[int, FrameResult]:
-    """Every frame result saved in a run ``folder``, by frame index."""
+def load_results(folder: Path) -> dict[tuple[int, int], FrameResult]:
+    """Every object fit saved in a run ``folder``, by (frame index, track)."""
     results = (load_result(p) for p in sorted((folder / FRAMES).glob("frame_*.pt")))
-    return {r.index: r for r in results}
+    return {r.key: r for r in results}
 
 
 @dataclass(frozen=True)
@@ -162,6 +172,11 @@ class SavedWindow:
     @property
     def frames(self) -> list[int]:
         return sorted(self.result.losses)
+
+    @property
+    def key(self) -> tuple[int, int]:
+        """(first frame, track): what names this window in a run folder."""
+        return self.frames[0], self.track
 
 
 def save_window(folder: Path, window: SavedWindow) -> None:
@@ -194,7 +209,7 @@ def save_window(folder: Path, window: SavedWindow) -> None:
     buffer = io.BytesIO()
     torch.save(record, buffer)
     ensure_folder(folder / WINDOWS)
-    atomic_write_bytes(window_path(folder, window.frames[0]), buffer.getvalue())
+    atomic_write_bytes(window_path(folder, window.track, window.frames[0]), buffer.getvalue())
 
 
 def load_window(path: Path) -> SavedWindow:

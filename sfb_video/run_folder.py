@@ -30,12 +30,13 @@ Files of a ``process`` run (every path of a run is spelled here)::
 
     run.json                  marker, the run's inputs and fingerprint
     config.yaml               the resolved config
-    frames/frame_XXXXX.pt     one saved fit per fitted frame (what resume and export read)
-    detections.json           every frame's status, written when fitting is done
-    windows/window_XXXXX.pt   one saved joint fit per window of a track (from frame XXXXX)
+    frames/frame_XXXXX_track_YY.pt    one saved fit per object fitted in a frame (what resume
+                                      and export read)
+    detections.json                   every frame's objects (or none), written when fitting is done
+    windows/window_XXXXX_track_YY.pt  one saved joint fit per window of a track (from frame XXXXX)
     tsr.mp4, trajectory.csv, recording.rrd
-    meshes/frame_XXXXX.glb, meshes/track_XX.glb, meshes/best/mesh.obj (+ .mtl, .png)
-    novel_views/frame_XXXXX.mp4 (+ .png)
+    meshes/frame_XXXXX_track_YY.glb, meshes/track_YY.glb, meshes/best/mesh.obj (+ .mtl, .png)
+    novel_views/frame_XXXXX_track_YY.mp4 (+ .png)
     summary.json              the last output written
 """
 
@@ -77,24 +78,28 @@ NEW_SUFFIX = ".sfb-video-new"
 OLD_SUFFIX = ".sfb-video-old"
 
 
-def frame_path(folder: Path, index: int) -> Path:
-    """Where the saved fit of frame ``index`` lives in a run folder."""
-    return folder / FRAMES / f"frame_{index:05d}.pt"
+def frame_path(folder: Path, index: int, track: int) -> Path:
+    """Where the saved fit of track ``track``'s object in frame ``index`` lives in a run folder."""
+    return folder / FRAMES / f"frame_{index:05d}_track_{track:02d}.pt"
 
 
-def saved_frames(folder: Path) -> set[int]:
-    """Indices of the frames whose fits are saved in a run ``folder``."""
-    return {int(p.stem.removeprefix("frame_")) for p in (folder / FRAMES).glob("frame_*.pt")}
+def saved_frames(folder: Path) -> set[tuple[int, int]]:
+    """(frame index, track) of every object fit saved in a run ``folder``."""
+    saved = set()
+    for p in (folder / FRAMES).glob("frame_*_track_*.pt"):
+        index, _, track = p.stem.removeprefix("frame_").partition("_track_")
+        saved.add((int(index), int(track)))
+    return saved
 
 
-def window_path(folder: Path, first: int) -> Path:
-    """Where the saved joint fit of the window that starts at frame ``first`` lives."""
-    return folder / WINDOWS / f"window_{first:05d}.pt"
+def window_path(folder: Path, track: int, first: int) -> Path:
+    """Where the saved joint fit of track ``track``'s window from frame ``first`` lives."""
+    return folder / WINDOWS / f"window_{first:05d}_track_{track:02d}.pt"
 
 
-def mesh_path(folder: Path, index: int) -> Path:
-    """The textured GLB of frame ``index``."""
-    return folder / MESHES / f"frame_{index:05d}.glb"
+def mesh_path(folder: Path, index: int, track: int) -> Path:
+    """The textured GLB of track ``track``'s object in frame ``index``."""
+    return folder / MESHES / f"frame_{index:05d}_track_{track:02d}.glb"
 
 
 def track_mesh_path(folder: Path, track: int) -> Path:
@@ -102,9 +107,10 @@ def track_mesh_path(folder: Path, track: int) -> Path:
     return folder / MESHES / f"track_{track:02d}.glb"
 
 
-def novel_view_path(folder: Path, index: int) -> Path:
-    """The turntable video of frame ``index`` (its PNG strip has the same stem)."""
-    return folder / NOVEL_VIEWS / f"frame_{index:05d}.mp4"
+def novel_view_path(folder: Path, index: int, track: int) -> Path:
+    """The turntable video of track ``track``'s object in frame ``index`` (its PNG strip has the
+    same stem)."""
+    return folder / NOVEL_VIEWS / f"frame_{index:05d}_track_{track:02d}.mp4"
 
 
 def sibling(path: Path, suffix: str) -> Path:

@@ -12,7 +12,6 @@ the prediction; otherwise the largest blob wins.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -266,6 +265,94 @@ def gate_distance(
     return distance
 
 
+@dataclass
+class FrameBlobs:
+    """The blobs of one frame's moving mask (:func:`blobs`), found once for every track that
+    looks for its object there.
+
+    Attributes:
+        count, labels, stats, centroids: as :func:`blobs` returns them.
+        pixels: the frame's (3, H, W) pixels and background as arrays, for the blobs' colours.
+    """
+
+    count: int
+    labels: np.ndarray
+    stats: np.ndarray
+    centroids: np.ndarray
+    pixels: tuple[np.ndarray, np.ndarray] | None = None
+
+    def __post_init__(self) -> None:
+        self._colours: dict[int, tuple[float, float, float]] = {}
+
+    def colour(self, label: int) -> tuple[float, float, float] | None:
+        """The chromaticity of blob ``label`` (:func:`blob_colour`), None without the frame."""
+        if self.pixels is None:
+            return None
+        if label not in self._colours:
+            self._colours[label] = blob_colour(*self.pixels, self.labels == label)
+        return self._colours[label]
+
+    def area(self, label: int) -> float:
+        return float(self.stats[label, cv2.CC_STAT_AREA])
+
+    def detection(self, index: int, label: int, others: int = 0) -> Detection:
+        """Blob ``label`` as frame ``index``'s detection."""
+        x, y, w, h = (int(v) for v in self.stats[label, :4])
+        return Detection(index, (x, y, w, h), torch.from_numpy(self.labels == label), others, self.colour(label))
+
+
+def frame_blobs(
+    moving: torch.Tensor, config: DetectConfig, frame: tuple[torch.Tensor, torch.Tensor] | None = None
+) -> FrameBlobs:
+    """The blobs of a frame's ``moving`` mask (:func:`moving_mask`), with the frame's pixels and
+    background (3, H, W) each when given, for their colours."""
+    count, labels, stats, centroids = blobs(moving.cpu().numpy().astype(bool), config.merge_px, config.min_area_px)
+    pixels = None if frame is None else (frame[0].cpu().numpy(), frame[1].cpu().numpy())
+    return FrameBlobs(count, labels, stats, centroids, pixels)
+
+
+def pick_blob(
+    found: FrameBlobs, prediction: Prediction | None, config: DetectConfig, taken: frozenset[int] = frozenset()
+) -> tuple[int, int] | None:
+    """The label of the FMO among ``found``'s blobs but the ``taken`` ones (another track's), and
+    how many other blobs could have been it (at least a quarter of its area, within the
+    prediction's gate), or None.
+
+    Without a ``prediction`` the largest blob; with one, the blobs within its gate
+    (:func:`gate_distance`) weighed by area, nearness and the track's colour.
+    """
+    best: tuple[float, int] | None = None
+    candidates: list[int] = []
+    for label in range(1, found.count):
+        if label in taken:
+            continue
+        area = found.area(label)
+        if prediction is None and area < config.min_area_px:
+            continue
+        score = area
+        if prediction is not None:
+            w, h = (int(v) for v in found.stats[label, 2:4])
+            centre = (float(found.centroids[label][0]), float(found.centroids[label][1]))
+            distance = gate_distance(prediction, centre, (w, h), area, config)
+            if distance is None:
+                continue
+            # Nearness alone would pick a speck or a shred of a slow mover next to a poor
+            # prediction over the real streak a little further away; size counts too.
+            score = area / (1 + (distance / max(prediction.diameter, 1.0)) ** 2)
+            colour = found.colour(label)
+            if prediction.colour is not None and colour is not None:
+                # A shred of an arm or a shadow of the wall near a poor prediction is another
+                # colour than the track's object.
+                score /= 1 + (math.dist(colour, prediction.colour) / config.colour_scale) ** 2
+        candidates.append(label)
+        if best is None or score > best[0]:
+            best = (score, label)
+    if best is None:
+        return None
+    label = best[1]
+    return label, sum(k != label and found.area(k) >= found.area(label) / 4 for k in candidates)
+
+
 def choose_blob(
     index: int,
     moving: torch.Tensor,
@@ -273,46 +360,13 @@ def choose_blob(
     config: DetectConfig,
     frame: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> Detection | None:
-    """The FMO among the blobs of a frame's ``moving`` mask (:func:`moving_mask`), or None.
+    """The FMO among the blobs of a frame's ``moving`` mask (:func:`moving_mask`), or None
+    (:func:`pick_blob`).
 
     Split from :func:`detect` so that a tracker trying several predictions on one frame runs
     the slow-mover test once. With the ``frame`` (its (3, H, W) pixels and background), the
     detection carries its blob's colour, and a prediction's colour (the track's) weighs blobs.
     """
-    count, labels, stats, centroids = blobs(moving.cpu().numpy().astype(bool), config.merge_px, config.min_area_px)
-    pixels = None if frame is None else tuple(t.cpu().numpy() for t in frame)
-
-    @functools.cache  # the chosen blob's colour is needed again for its detection
-    def colour(label: int) -> tuple[float, float, float] | None:
-        return None if pixels is None else blob_colour(*pixels, labels == label)
-
-    best: tuple[float, int] | None = None
-    candidates: list[int] = []
-    for label in range(1, count):
-        area = float(stats[label, cv2.CC_STAT_AREA])
-        if prediction is None and area < config.min_area_px:
-            continue
-        score = area
-        if prediction is not None:
-            w, h = (int(v) for v in stats[label, 2:4])
-            distance = gate_distance(
-                prediction, (float(centroids[label][0]), float(centroids[label][1])), (w, h), area, config
-            )
-            if distance is None:
-                continue
-            # Nearness alone would pick a speck or a shred of a slow mover next to a poor
-            # prediction over the real streak a little further away; size counts too.
-            score = area / (1 + (distance / max(prediction.diameter, 1.0)) ** 2)
-            if prediction.colour is not None and pixels is not None:
-                # A shred of an arm or a shadow of the wall near a poor prediction is another
-                # colour than the track's object.
-                apart = math.dist(colour(label), prediction.colour)  # type: ignore[arg-type]
-                score /= 1 + (apart / config.colour_scale) ** 2
-        candidates.append(label)
-        if best is None or score > best[0]:
-            best = (score, label)
-    if best is None:
-        return None
-    x, y, w, h = (int(v) for v in stats[best[1], :4])
-    others = sum(k != best[1] and stats[k, 4] >= stats[best[1], 4] / 4 for k in candidates)
-    return Detection(index, (x, y, w, h), torch.from_numpy(labels == best[1]), others, colour(best[1]))
+    found = frame_blobs(moving, config, frame)
+    picked = pick_blob(found, prediction, config)
+    return None if picked is None else found.detection(index, *picked)

@@ -53,41 +53,71 @@ from sfb_video.stages.windows import frame_windows, with_joint
 from sfb_video.video import VideoWriter
 
 
-class Pasted(Sequence[torch.Tensor]):
-    """Full frames, each the input frame with one patch blended into a box; made one at a time
-    when asked for, so that N sub-frames of a large frame are never all in memory.
+@dataclass(frozen=True)
+class Layer:
+    """One object's sub-frames in its region of a frame.
 
-    Args:
-        frame: (3, H, W) the input frame, uint8 or float32 in [0, 1]; the frames come out in
-            its dtype (uint8 keeps a 4K frame at 25 MB).
-        patches: (N, 3, h, w) float32 in [0, 1], what replaces the box in each frame.
+    Attributes:
+        patches: (N, 3, h, w) what replaces the box in each sub-frame, in the frame's dtype
+            (uint8, or float32 in [0, 1]).
         box: (x, y, w, h) where.
         weights: (h, w) in [0, 1], how much of each patch pixel replaces the frame's
             (:func:`sfb_video.stages.composite.object_region`).
     """
 
-    def __init__(self, frame: torch.Tensor, patches: torch.Tensor, box: Box, weights: torch.Tensor) -> None:
-        if frame.dtype == torch.uint8:
-            patches = patches.mul(255).clamp_(0, 255).round_().to(torch.uint8)
-        self.frame, self.patches, self.box, self.weights = frame, patches, box, weights
+    patches: torch.Tensor
+    box: Box
+    weights: torch.Tensor
+
+
+def layer(frame: torch.Tensor, patches: torch.Tensor, box: Box, weights: torch.Tensor) -> Layer:
+    """A :class:`Layer` of float ``patches`` (N, 3, h, w) in [0, 1], kept in ``frame``'s dtype
+    (uint8 keeps a 4K frame's sub-frames small)."""
+    if frame.dtype == torch.uint8:
+        patches = patches.mul(255).clamp_(0, 255).round_().to(torch.uint8)
+    return Layer(patches, box, weights)
+
+
+class Pasted(Sequence[torch.Tensor]):
+    """Full frames, each the input frame with its objects' patches blended in, farthest first;
+    made one at a time when asked for, so that N sub-frames of a large frame are never all in
+    memory.
+
+    Args:
+        frame: (3, H, W) the input frame, uint8 or float32 in [0, 1]; the frames come out in
+            its dtype.
+        layers: the objects' :class:`Layer`, farthest first (each of N sub-frames).
+    """
+
+    def __init__(self, frame: torch.Tensor, layers: list[Layer]) -> None:
+        self.frame, self.layers = frame, layers
 
     def __len__(self) -> int:
-        return self.patches.shape[0]
+        return self.layers[0].patches.shape[0]
 
     def __getitem__(self, k: int) -> torch.Tensor:  # type: ignore[override]
         if not -len(self) <= k < len(self):
             raise IndexError(k)
-        x, y, w, h = self.box
         full = self.frame.clone()
-        under = self.frame[:, y : y + h, x : x + w].float()
-        blended = under + self.weights * (self.patches[k].float() - under)
-        full[:, y : y + h, x : x + w] = blended.round_() if full.dtype == torch.uint8 else blended
+        for part in self.layers:
+            x, y, w, h = part.box
+            under = full[:, y : y + h, x : x + w].float()
+            blended = under + part.weights * (part.patches[k].float() - under)
+            full[:, y : y + h, x : x + w] = blended.round_() if full.dtype == torch.uint8 else blended
         return full
+
+    def weights(self) -> torch.Tensor:
+        """(H, W) float32: how much of each frame pixel the objects replace."""
+        out = torch.zeros(self.frame.shape[1:], dtype=torch.float32)
+        for part in self.layers:
+            x, y, w, h = part.box
+            out[y : y + h, x : x + w] = torch.maximum(out[y : y + h, x : x + w], part.weights.cpu().float())
+        return out
 
 
 class Unwarped(Sequence[torch.Tensor]):
     """A registered frame's rendered sub-frames (full frames in its reference's coordinates)
-    brought back into the frame as filmed: the object's region of each is warped back and
+    brought back into the frame as filmed: the objects' regions of each are warped back and
     blended into the original frame, so the rest keeps the frame's own pixels.
 
     Args:
@@ -98,10 +128,7 @@ class Unwarped(Sequence[torch.Tensor]):
     def __init__(self, subframes: Pasted, registered: Registered) -> None:
         assert registered.to_reference is not None
         self.subframes, self.registered = subframes, registered
-        x, y, w, h = subframes.box
-        weights = torch.zeros(subframes.frame.shape[1:], dtype=torch.float32)
-        weights[y : y + h, x : x + w] = subframes.weights.cpu().float()
-        self.weights = unwarp(weights, registered.to_reference)
+        self.weights = unwarp(subframes.weights(), registered.to_reference)
 
     def __len__(self) -> int:
         return len(self.subframes)
@@ -130,19 +157,24 @@ def unfitted(frame: FrameWithBackground, config: Config) -> torch.Tensor:
 
 @dataclass(frozen=True)
 class Rendered:
-    """One frame rendered from its result, full-frame.
+    """One object of a frame rendered from its result, full-frame.
 
     Attributes:
-        reconstruction: (3, H, W) I_hat: the frame with the blurred model in the object's region.
-        subframes: N full frames (3, H, W), the sharp sub-frames, made one at a time.
-            Both in the dtype the frame is kept in (uint8 or float32, :func:`as_float`).
+        blurred: the blurred model over the background in the object's region (I_hat's layer).
+        subframes: N full frames (3, H, W), the sharp sub-frames, made one at a time, in the
+            dtype the frame is kept in (uint8 or float32, :func:`as_float`).
         explained: how much of the frame's difference from its background the fit explains
             over the object's region (:func:`sfb_video.stages.composite.explained`).
     """
 
-    reconstruction: torch.Tensor
+    blurred: Layer
     subframes: Pasted
     explained: float
+
+    @property
+    def reconstruction(self) -> torch.Tensor:
+        """(3, H, W) I_hat: the frame with the blurred model in the object's region."""
+        return Pasted(self.subframes.frame, [self.blurred])[0]
 
 
 def _resize(images: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
@@ -170,6 +202,24 @@ def streak_box(result: FrameResult, camera: PinholeCamera) -> Box:
     return x0, y0, x1 - x0, y1 - y0
 
 
+def render_patches(
+    state: ObjectState, camera: PinholeCamera, box: Box, background: torch.Tensor, n: int, config: Config
+) -> torch.Tensor:
+    """(n, 3, h, w) float32 sharp sub-frames of ``state`` in ``box`` over ``background``
+    ((3, h, w), or (n, 3, h, w): one per sub-frame, such as a farther object's sub-frames).
+
+    A box wider than ``render.export_max_width`` is rendered at that width and the object scaled
+    up onto it; the background keeps its own pixels."""
+    x, y, w, h = box
+    scale = min(1.0, config.render.export_max_width / w)
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    small_bg = _resize(background, size)
+    patches = state.render_subframes(camera.crop(x, y, w, h, *size), small_bg, n, config.render)
+    if size != (w, h):
+        patches = background + _resize(patches - small_bg, (w, h))
+    return patches
+
+
 def render_frame(
     frame: FrameWithBackground,
     result: FrameResult,
@@ -182,9 +232,8 @@ def render_frame(
     frame (:mod:`sfb_video.stages.composite`): the model's path and the parts of the frame's streak
     connected to it, so that no part of the input's streak is left as a ghost.
 
-    Outside the region the input frame is kept (so other movers stay as they were). A region
-    wider than ``render.export_max_width`` is rendered at that width and the object scaled up
-    onto it.
+    Outside the region the input frame is kept (so other movers stay as they were, until
+    :func:`composite` adds theirs).
 
     Args:
         difference: (H, W) the frame's :func:`sfb_video.stages.detect.difference_image`, if already made.
@@ -194,26 +243,61 @@ def render_frame(
     region = fitted_region(result.state, camera, difference, config.detect)
     box = region_box(region, streak_box(result, camera))
     x, y, w, h = box
-    scale = min(1.0, config.render.export_max_width / w)
-    size = (max(1, round(w * scale)), max(1, round(h * scale)))
     patch_bg = as_float(frame.background_pixels[:, y : y + h, x : x + w])
-    small_bg = _resize(patch_bg, size)
-    patches = result.state.render_subframes(camera.crop(x, y, w, h, *size), small_bg, n, config.render)
-    if size != (w, h):
-        # Only the object is scaled up; the background keeps the frame's own pixels.
-        patches = patch_bg + _resize(patches - small_bg, (w, h))
+    patches = render_patches(result.state, camera, box, patch_bg, n, config)
     weights = torch.from_numpy(region[y : y + h, x : x + w]).to(patches.device)
     blurred = patches.mean(0)
     if n * config.render.steps_per_subframe < BLUR_POSES:
         # Few sub-frames average into a few sharp copies, not the frame's blur: the quality
         # signal would depend on the TSR factor.
+        scale = min(1.0, config.render.export_max_width / w)
+        size = (max(1, round(w * scale)), max(1, round(h * scale)))
+        small_bg = _resize(patch_bg, size)
         camera_box = camera.crop(x, y, w, h, *size)
         blurred = patch_bg + _resize(
             result.state.render_blurred(camera_box, small_bg, BLUR_POSES, config.render) - small_bg, (w, h)
         )
     quality = explained(as_float(frame.pixels[:, y : y + h, x : x + w]), patch_bg, blurred, weights)
-    reconstruction = Pasted(frame.pixels, blurred[None], box, weights)[0]
-    return Rendered(reconstruction, Pasted(frame.pixels, patches, box, weights), quality)
+    sharp = Pasted(frame.pixels, [layer(frame.pixels, patches, box, weights)])
+    return Rendered(layer(frame.pixels, blurred[None], box, weights), sharp, quality)
+
+
+def _depth(result: FrameResult) -> float:
+    """The object's distance from the camera at mid-exposure."""
+    return float(result.state.motion.at(torch.full((1,), 0.5))[1][0, 2])
+
+
+def _overlaps(a: Box, b: Box) -> bool:
+    return min(a[0] + a[2], b[0] + b[2]) > max(a[0], b[0]) and min(a[1] + a[3], b[1] + b[3]) > max(a[1], b[1])
+
+
+def composite(
+    frame: FrameWithBackground,
+    objects: list[tuple[FrameResult, Rendered]],
+    camera: PinholeCamera,
+    n: int,
+    config: Config,
+) -> tuple[torch.Tensor, Pasted]:
+    """Every object's rendering of one frame in one: I_hat (3, H, W) and the sub-frames, blended
+    farthest first, so that where two objects' regions overlap the nearer is in front. An object
+    whose region overlaps a farther one's is rendered again over that object's sub-frames (not
+    over the bare background, which would cut a hole in it)."""
+    if len(objects) == 1:
+        return objects[0][1].reconstruction, objects[0][1].subframes
+    ordered = sorted(objects, key=lambda o: -_depth(o[0]))
+    reconstruction = Pasted(frame.pixels, [r.blurred for _, r in ordered])[0]
+    layers: list[Layer] = []
+    for result, rendered in ordered:
+        own = rendered.subframes.layers[0]
+        if any(_overlaps(own.box, other.box) for other in layers):
+            x, y, w, h = own.box
+            plate = Pasted(frame.background_pixels, layers)
+            under = torch.stack([as_float(plate[k][:, y : y + h, x : x + w]) for k in range(n)])
+            own = layer(
+                frame.pixels, render_patches(result.state, camera, own.box, under, n, config), own.box, own.weights
+            )
+        layers.append(own)
+    return reconstruction, Pasted(frame.pixels, layers)
 
 
 def trajectory_rows(
@@ -319,15 +403,15 @@ class Exported:
 
     Attributes:
         video_frames: frames written to ``tsr.mp4``.
-        rows: trajectory rows (:func:`trajectory_rows`) of every fitted frame.
-        fits: per fitted frame, what ``summary.json`` reports of it.
-        best: the fitted frame with the lowest image loss, or None.
+        rows: trajectory rows (:func:`trajectory_rows`) of every fitted object, with its track.
+        fits: per fitted object (frame index, track), what ``summary.json`` reports of it.
+        best: the fitted object with the lowest image loss, or None.
     """
 
     video_frames: int = 0
     rows: list[dict[str, float | int | str]] = field(default_factory=list)
-    fits: dict[int, dict[str, Any]] = field(default_factory=dict)
-    best: int | None = None
+    fits: dict[tuple[int, int], dict[str, Any]] = field(default_factory=dict)
+    best: tuple[int, int] | None = None
 
 
 def _mask_order(result: FrameResult) -> str | None:
@@ -359,20 +443,22 @@ def _fit_record(result: FrameResult, speed: float, diameter: float | None) -> di
 
 
 class _Windows:
-    """The joint fits of a run, loaded one window at a time as the frames stream past."""
+    """The joint fits of a run, loaded one window at a time per track as the frames stream past."""
 
     def __init__(self, folder: Path, windows: list[Window]) -> None:
         self.folder, self.owner = folder, frame_windows(windows)
-        self.loaded: SavedWindow | None = None
+        self.loaded: dict[int, SavedWindow] = {}
 
-    def of(self, index: int) -> SavedWindow | None:
-        """The window whose joint fit stands for frame ``index``, or None."""
-        first = self.owner.get(index)
-        if first is None:
+    def of(self, key: tuple[int, int]) -> SavedWindow | None:
+        """The window whose joint fit stands for object ``key`` (frame index, track), or None."""
+        owner = self.owner.get(key)
+        if owner is None:
             return None
-        if self.loaded is None or self.loaded.frames[0] != first:
-            self.loaded = load_window(window_path(self.folder, first))
-        return self.loaded
+        first, track = owner
+        window = self.loaded.get(track)
+        if window is None or window.frames[0] != first:
+            window = self.loaded[track] = load_window(window_path(self.folder, track, first))
+        return window
 
 
 def export_frames(
@@ -387,16 +473,19 @@ def export_frames(
     name: str,
     diameter: float | None,
 ) -> Exported:
-    """Stream the clip once and write ``tsr.mp4`` (N sub-frames per fitted frame, the frame N
-    times otherwise), ``recording.rrd``, ``meshes/frame_XXXXX.glb`` and one
-    ``meshes/track_XX.glb`` per track (the lowest-L_I frame's mesh), loading each frame's saved
-    result (and its window's joint fit) only while it is needed, so memory does not grow with
-    the clip."""
+    """Stream the clip once and write ``tsr.mp4`` (N sub-frames per fitted frame, every object
+    of the frame in them; the frame N times otherwise), ``recording.rrd``,
+    ``meshes/frame_XXXXX_track_YY.glb`` and one ``meshes/track_YY.glb`` per track (its lowest-L_I
+    frame's mesh), loading each object's saved result (and its window's joint fit) only while it
+    is needed, so memory does not grow with the clip."""
     done = Exported()
-    trajectory: list[np.ndarray] = []
+    trajectory: dict[int, list[np.ndarray]] = {}
     best_loss = math.inf
     tracks: dict[int, tuple[float, ObjectState]] = {}
-    by_index = {s.index: s for s in statuses}
+    fitted: dict[int, list[FrameStatus]] = {}
+    for s in statuses:
+        if s.status == "fitted" and s.track is not None:
+            fitted.setdefault(s.index, []).append(s)
     joint = _Windows(folder, windows)
     ensure_folder(folder / MESHES)
     with (
@@ -407,51 +496,56 @@ def export_frames(
             recorder.log_frame(frame.index, frame.pixels, frame.background_pixels)
             difference = difference_image(frame.pixels, frame.background_pixels)
             mask = threshold_difference(difference, config.detect)
-            status = by_index.get(frame.index)
-            recorder.log_detection(frame.index, None if status is None else status.box, mask)
-            path = frame_path(folder, frame.index)
-            if not path.is_file():
+            present = [s for s in fitted.get(frame.index, []) if frame_path(folder, s.index, s.track).is_file()]
+            boxes = {s.track: s.box for s in present if s.box is not None}
+            recorder.log_detection(frame.index, boxes, mask)
+            if not present:
                 for _ in range(n):
                     video.write(unfitted(frame, config))
                 continue
-            single = load_result(path)
-            window = joint.of(frame.index)
-            result = single if window is None else with_joint(single, window)
-            rendered = render_frame(frame, result, camera, n, config, difference)
-            filmed = as_filmed(frame, rendered.subframes, config)
+            objects = []
+            for status in present:
+                single = load_result(frame_path(folder, status.index, status.track))
+                window = joint.of(single.key)
+                result = single if window is None else with_joint(single, window)
+                rendered = render_frame(frame, result, camera, n, config, difference)
+                objects.append((result, rendered))
+                recorder.log_fit(frame.index, result.track, result.state, result.losses, result.curve, n)
+                recorder.log_quality(frame.index, result.track, rendered.explained)
+                order = _mask_order(result)
+                source = result.mask_source if order is None else f"{result.mask_source}, order {order}"
+                recorder.log_masks(frame.index, source, result.crop_box, result.masks, n)
+                write_glb(result.state, mesh_path(folder, frame.index, result.track))
+                rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
+                record = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)
+                record["explained"] = rendered.explained
+                if window is not None:
+                    record.update(
+                        window=window.frames[0], losses_before=single.losses, prototype_before=single.prototype
+                    )
+                    if frame.index + 1 in window.result.losses:
+                        rows += gap_rows(window.result.trajectory, frame.index, camera, n, fps, diameter)
+                if not (frame.registered is None or frame.registered.failed or config.camera.stabilised):
+                    _to_frame(rows, frame.registered.to_reference)
+                points = trajectory.setdefault(result.track, [])
+                points.append(np.array([[r["x"], r["y"], r["z"]] for r in rows], dtype=np.float32))
+                recorder.log_trajectory(np.concatenate(points), result.track)
+                done.rows += [{"track": result.track, **r} for r in rows]
+                done.fits[result.key] = record
+                if result.losses["image"] < best_loss:
+                    best_loss, done.best = result.losses["image"], result.key
+                if result.losses["image"] < tracks.get(result.track, (math.inf,))[0]:
+                    tracks[result.track] = (result.losses["image"], result.state)
+            reconstruction, subframes = composite(frame, objects, camera, n, config)
+            filmed = as_filmed(frame, subframes, config)
             for sub in filmed:
                 video.write(sub)
-            recorder.log_fit(
-                frame.index, result.state, rendered.reconstruction, rendered.subframes, result.losses, result.curve
-            )
-            recorder.log_quality(frame.index, rendered.explained)
-            order = _mask_order(result)
-            source = result.mask_source if order is None else f"{result.mask_source}, order {order}"
-            recorder.log_masks(frame.index, source, result.crop_box, result.masks, n)
-            write_glb(result.state, mesh_path(folder, frame.index))
-            rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
-            record = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)
-            record["explained"] = rendered.explained
-            if window is not None:
-                record.update(window=window.frames[0], losses_before=single.losses, prototype_before=single.prototype)
-                if frame.index + 1 in window.result.losses:
-                    rows += gap_rows(window.result.trajectory, frame.index, camera, n, fps, diameter)
-            if filmed is not rendered.subframes:
-                _to_frame(rows, frame.registered.to_reference)
-            trajectory.append(np.array([[r["x"], r["y"], r["z"]] for r in rows], dtype=np.float32))
-            recorder.log_trajectory(np.concatenate(trajectory))
-            done.rows += rows
-            done.fits[frame.index] = record
-            if result.losses["image"] < best_loss:
-                best_loss, done.best = result.losses["image"], frame.index
-            track = None if status is None else status.track
-            if track is not None and result.losses["image"] < tracks.get(track, (math.inf,))[0]:
-                tracks[track] = (result.losses["image"], result.state)
+            recorder.log_subframes(frame.index, reconstruction, subframes)
         done.video_frames = video.frames_written
     for track, (_, state) in tracks.items():
         write_glb(state, track_mesh_path(folder, track))
     if done.best is not None:
-        single = load_result(frame_path(folder, done.best))
+        single = load_result(frame_path(folder, *done.best))
         window = joint.of(done.best)
         best = single if window is None else with_joint(single, window)
         write_obj(best.state, ensure_folder(folder / BEST_MESH), name="mesh")

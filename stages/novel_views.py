@@ -52,22 +52,26 @@ def turntable(state: ObjectState, views: int, config: Config, background: float 
 
 
 def write_novel_views(folder: Path, config: Config, frames: list[int], views: int) -> list[Path]:
-    """Turntables of the meshes of ``frames`` (the best frame when empty); returns the videos written."""
+    """Turntables of the meshes of every object in ``frames`` (the best object when empty);
+    returns the videos written."""
     results = final_results(folder)
     if not results:
         raise SfbError(f"{folder} holds no fitted frame to render")
     if views < 2:
         raise SfbError(f"--views must be at least 2, got {views}")
+    fitted = sorted({index for index, _ in results})
     if not frames:
-        frames = [min(results.values(), key=lambda r: r.losses["image"]).index]
-    missing = [f for f in frames if f not in results]
-    if missing:
-        raise SfbError(f"frame {missing[0]} was not fitted; fitted frames: {sorted(results)}")
+        keys = [min(results.values(), key=lambda r: r.losses["image"]).key]
+    else:
+        missing = [f for f in frames if f not in fitted]
+        if missing:
+            raise SfbError(f"frame {missing[0]} was not fitted; fitted frames: {fitted}")
+        keys = sorted(k for k in results if k[0] in frames)
     written = []
-    for index in frames:
-        images = turntable(results[index].state, views, config)
+    for key in keys:
+        images = turntable(results[key].state, views, config)
         ensure_folder(folder / NOVEL_VIEWS)
-        path = novel_view_path(folder, index)
+        path = novel_view_path(folder, *key)
         with VideoWriter(path, 24.0, SIZE[0], SIZE[1]) as video:
             for image in images:
                 video.write(image)

@@ -157,14 +157,15 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     windows = track_windows(statuses, config.joint.window, config.joint.overlap) if config.joint.enabled else []
     # A window whose joint fit diverged was not saved, and one that explains its frames worse
     # than their single-frame fits is not accepted: their frames keep the single-frame fits.
-    windows = [w for w in windows if window_path(folder, w[1][0]).is_file()]
+    windows = [w for w in windows if window_path(folder, w[0], w[1][0]).is_file()]
     summary_windows = windows
-    windows = [w for w in windows if load_window(window_path(folder, w[1][0])).accepted]
+    windows = [w for w in windows if load_window(window_path(folder, w[0], w[1][0])).accepted]
     diameter = record["object_diameter"]
     name = printable(video.stem)
     done = export_frames(folder, stream, statuses, windows, camera, info.fps, tsr, config, name, diameter)
     write_csv(folder / TRAJECTORY, done.rows)
     summary = _summary(record, info, statuses, done, tsr, device_note, config.video.min_explained)
+    summary["tracks"] = _track_summary(statuses, done)
     summary["camera"] = _camera_summary(motion)
     summary["joint"] = _joint_summary(folder, summary_windows)
     write_json(folder / SUMMARY, summary)
@@ -180,8 +181,10 @@ def _summary(
     device_note: str,
     min_explained: float,
 ) -> dict:
-    frames = [dataclasses.asdict(s) | done.fits.get(s.index, {}) for s in statuses]
+    frames = [dataclasses.asdict(s) | done.fits.get((s.index, s.track), {}) for s in statuses]  # type: ignore[arg-type]
     fits = list(done.fits.values())
+    read = {s.index for s in statuses}
+    fitted = {index for index, _ in done.fits}
 
     def mean(key: str, start: str | None = None) -> float | None:
         values = [f[key] for f in fits if start in (None, f["start"])]
@@ -192,18 +195,20 @@ def _summary(
         "width": info.width,
         "height": info.height,
         "fps": info.fps,
-        "frames_read": len(statuses),
-        "frames_fitted": len(fits),
-        "frames_without_object": sum(s.status == "no_object" for s in statuses),
-        "frames_with_other_movers": sum("other moving object" in s.note for s in statuses),
+        "frames_read": len(read),
+        "frames_fitted": len(fitted),
+        "objects_fitted": len(fits),
+        "frames_without_object": len({s.index for s in statuses if s.status == "no_object"} - fitted),
+        "frames_with_other_movers": len({s.index for s in statuses if "other moving object" in s.note}),
         "cold_starts": sum(f["start"] == "cold" for f in fits),
         "warm_starts": sum(f["start"] == "warm" for f in fits),
         "mean_seconds_cold": mean("seconds", "cold"),
         "mean_seconds_warm": mean("seconds", "warm"),
         "mean_image_loss": None if not fits else sum(f["losses"]["image"] for f in fits) / len(fits),
-        "unexplained_frames": sorted(i for i, f in done.fits.items() if f["explained"] < min_explained),
+        "unexplained_frames": sorted({i for (i, _), f in done.fits.items() if f["explained"] < min_explained}),
         "min_explained": min_explained,
-        "best_frame": done.best,
+        "best_frame": None if done.best is None else done.best[0],
+        "best_track": None if done.best is None else done.best[1],
         "tsr": tsr,
         "tsr_video_frames": done.video_frames,
         "object_diameter_m": record["object_diameter"],
@@ -212,6 +217,26 @@ def _summary(
         "outputs": OUTPUTS,
         "frames": frames,
     }
+
+
+def _track_summary(statuses: list[FrameStatus], done: Exported) -> list[dict]:
+    """What summary.json says of each track: its frames, its prototype (the last frame's), its
+    median speed and mean ``explained``."""
+    rows = []
+    for track in sorted({t for _, t in done.fits}):
+        fits = {i: f for (i, t), f in sorted(done.fits.items()) if t == track}
+        speeds = sorted(f["speed_sizes_per_s"] for f in fits.values())
+        rows.append(
+            {
+                "track": track,
+                "frames": sorted(fits),
+                "merged_frames": sorted(s.index for s in statuses if s.track == track and s.status == "merged"),
+                "prototype": fits[max(fits)]["prototype"],
+                "speed_sizes_per_s": speeds[len(speeds) // 2],
+                "explained": sum(f["explained"] for f in fits.values()) / len(fits),
+            }
+        )
+    return rows
 
 
 def _camera_summary(motion: CameraMotion | None) -> dict:
@@ -235,7 +260,7 @@ def _joint_summary(folder: Path, windows: list[tuple[int, list[int]]]) -> dict:
     fraction, prototype (and the candidates' trial losses), and the mean L_I before and after."""
     rows = []
     for track, frames in windows:
-        saved = load_window(window_path(folder, frames[0]))
+        saved = load_window(window_path(folder, track, frames[0]))
         joint = saved.result
         rows.append(
             {

@@ -16,6 +16,7 @@ import dataclasses
 import math
 from collections import deque
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -28,12 +29,14 @@ from sfb_video.model.motion import Motion, continue_motion
 from sfb_video.results import FrameResult, load_result, save_result
 from sfb_video.run_folder import frame_path, saved_frames
 from sfb_video.stages.detect import (
+    FrameBlobs,
     Neighbour,
     blob_colour,
-    choose_blob,
     difference_mask,
+    frame_blobs,
     gate_distance,
     moving_mask,
+    pick_blob,
     still_there,
 )
 from sfb_video.stages.fit import continued, fit_detection
@@ -145,36 +148,31 @@ def with_neighbours(
 
 
 def follow(
-    frame: FrameWithBackground,
-    mask: torch.Tensor,
-    neighbours: list[Neighbour],
+    found: FrameBlobs,
     predictions: list[tuple[Prediction, FrameResult]],
     config: Config,
-) -> tuple[Detection | None, FrameResult | None]:
-    """Find the object of ``frame``, near where the track predicts it (:meth:`Tracker.predictions`).
+    taken: frozenset[int] = frozenset(),
+) -> tuple[tuple[int, int], FrameResult] | None:
+    """Find a track's object among a frame's blobs but the ``taken`` ones (other tracks'), near
+    where the track predicts it (:meth:`Tracker.predictions`).
 
     When the track's time direction is not known yet (its first frame), there are two
-    predictions, and the one whose prediction lands nearer its detection is kept. Blobs of the
+    predictions, and the one whose prediction lands nearer its blob is kept. Blobs of the
     track's colour are preferred.
 
     Returns:
-        the detection (None when there is no object) and the track's last frame in the
-        direction that predicted it (None when there was no track or the object was found away
-        from it).
+        the blob (its label and how many others could have been it, :func:`pick_blob`) and the
+        track's last frame in the direction that predicted it; None when no blob is near.
     """
-    moving = moving_mask(mask, neighbours, config.detect)
-    best: tuple[float, Detection, FrameResult] | None = None
-    pixels = (frame.pixels, frame.background_pixels)
+    best: tuple[float, tuple[int, int], FrameResult] | None = None
     for prediction, option in predictions:
-        found = choose_blob(frame.index, moving, prediction, config.detect, pixels)
-        if found is not None:
-            x, y, w, h = found.box
+        picked = pick_blob(found, prediction, config.detect, taken)
+        if picked is not None:
+            x, y, w, h = (float(v) for v in found.stats[picked[0], :4])
             distance = math.hypot(x + w / 2 - prediction.centre[0], y + h / 2 - prediction.centre[1])
             if best is None or distance < best[0]:
-                best = (distance, found, option)
-    if best is not None:
-        return best[1], best[2]
-    return choose_blob(frame.index, moving, None, config.detect, pixels), None
+                best = (distance, picked, option)
+    return None if best is None else (best[1], best[2])
 
 
 def follow_box(
@@ -210,14 +208,6 @@ def follow_box(
     return detection, None if best is None else best[1]
 
 
-def _others_note(detection: Detection, followed: FrameResult | None) -> str:
-    """What a frame's status says of other moving objects seen beside the tracked one."""
-    if not detection.others:
-        return ""
-    chosen = "the one the track predicts" if followed is not None else "the largest"
-    return f"{detection.others} other moving object(s) seen; one object is tracked: {chosen}"
-
-
 COLOUR_MEMORY = 0.7
 """A track's colour is this much its past frames' and the rest its newest blob's: one frame whose
 blob took in a piece of the arm holding the ball does not make the track look for skin."""
@@ -232,35 +222,55 @@ def _blend(
     return r, g, b
 
 
+@dataclass
+class TrackNumbers:
+    """The number the next track to start takes (tracks are numbered 0, 1, ... as they start,
+    whichever object they follow)."""
+
+    next: int = 0
+
+
 class Tracker:
-    """Which frames form a track, frame after frame: the pipeline's one rule, which the
+    """Which frames form one track, frame after frame: the pipeline's one rule, which the
     evaluation runs too.
 
     A frame continues the track when its object is found where the track's last frame, its
     motion continued across the gap (turning as it turned), predicts it (:func:`follow`, or
     :func:`follow_box` for a given box); the frames then join end to start (:func:`join`),
     which fixes the time direction of a track's first frame. A frame that is not the next one,
-    or has no object, ends the track.
+    or has no object, ends the track, but for one frame in which the object's streak merged with
+    another track's (:meth:`coast`).
 
     Attributes:
         previous: the track's last fitted frame (the warm start of the next); earlier: the one
             before it; colour: the chromaticity of the track's blobs; length: its fitted frames;
-            tracks: how many tracks have started.
+            number: the track's number (None before its first frame); numbers: where the
+            numbers of new tracks come from (shared by the trackers of one clip).
     """
 
-    def __init__(self, camera: PinholeCamera, config: Config) -> None:
+    def __init__(self, camera: PinholeCamera, config: Config, numbers: TrackNumbers | None = None) -> None:
         self.camera, self.config = camera, config
+        self.numbers = TrackNumbers() if numbers is None else numbers
         self.previous: FrameResult | None = None
         self.earlier: FrameResult | None = None
         self.colour: tuple[float, float, float] | None = None
-        self.length, self.tracks = 0, 0
+        self.length = 0
+        self.number: int | None = None
+        self.coasted: int | None = None
+
+    @property
+    def upcoming(self) -> int:
+        """The number of the track the next fitted frame joins: this one's, or a new one's."""
+        return self.numbers.next if self.previous is None or self.number is None else self.number
 
     def predictions(self, index: int) -> list[tuple[Prediction, FrameResult]]:
         """Where frame ``index``'s object should be, with the last frame in the direction that
         predicts it: one prediction, two while the track's direction is open, none without a
         track that goes on into this frame."""
-        if self.previous is not None and index - self.previous.index != 1:
-            self.lose()
+        if self.previous is not None:
+            gap = index - self.previous.index
+            if gap != 1 and not (gap == 2 and self.coasted == index - 1):
+                self.lose()
         self.earlier = self.earlier if self.length >= 2 else None
         if self.previous is None:
             return []
@@ -270,6 +280,14 @@ class Tracker:
             (dataclasses.replace(predict(continued(o, self.earlier, index, e), self.camera), colour=self.colour), o)
             for o in options
         ]
+
+    def coast(self, index: int) -> None:
+        """Keep the track through frame ``index``, where its object's streak merged into another
+        track's blob: the next frame is looked for two frames on from the track's last one."""
+        if self.coasted == index - 1:  # one frame at most
+            self.lose()
+        else:
+            self.coasted = index
 
     def found(self, followed: FrameResult | None) -> FrameResult | None:
         """Take what :func:`follow` found: the track's last frame in the direction that predicted
@@ -290,11 +308,15 @@ class Tracker:
         """Add a fitted frame to the track (a new one when none goes on).
 
         Returns:
-            the track's number, ``result`` in the track's time direction, and the track's previous
-            frame where joining reversed it (to be saved so), else None.
+            the track's number, ``result`` in the track's time direction (and numbered so), and
+            the track's previous frame where joining reversed it (to be saved so), else None.
         """
         if self.previous is None:
-            self.tracks += 1
+            self.number = self.numbers.next
+            self.numbers.next += 1
+        assert self.number is not None
+        if result.track != self.number:
+            result = dataclasses.replace(result, track=self.number)
         reversed_previous = None
         if self.previous is not None:
             e = self.config.video.exposure_fraction
@@ -303,11 +325,24 @@ class Tracker:
                 reversed_previous = before
         self.colour = _blend(self.colour if self.length else None, colour)
         self.earlier, self.previous, self.length = self.previous, result, self.length + 1
-        return self.tracks - 1, result, reversed_previous
+        return self.number, result, reversed_previous
 
     def lose(self) -> None:
         """End the track: the next object found starts a new one."""
-        self.previous, self.length = None, 0
+        self.previous, self.length, self.coasted = None, 0, None
+
+
+OTHER_SHARE = 0.25
+"""A blob that no track follows starts a new one when it is at least this share of the frame's
+largest blob: another fast mover, not a speck of noise or a shred of a slow one."""
+
+
+def _new_objects(found: FrameBlobs, taken: set[int], config: Config) -> list[int]:
+    """The labels of the blobs no track took that are objects of their own, largest first."""
+    areas = [found.area(k) for k in range(1, found.count)]
+    floor = max(config.detect.min_area_px, OTHER_SHARE * max(areas, default=0.0))
+    fresh = [k for k in range(1, found.count) if k not in taken and found.area(k) >= floor]
+    return sorted(fresh, key=lambda k: (-found.area(k), k))
 
 
 def track_and_fit(
@@ -319,55 +354,107 @@ def track_and_fit(
     masks: MaskSource | None = None,
     report: StepReport | None = None,
 ) -> list[FrameStatus]:
-    """Detect and fit every frame, saving each fit into the run ``folder`` as soon as it is done;
-    fits already saved there are reused.
+    """Detect and fit every object of every frame, saving each fit into the run ``folder`` as
+    soon as it is done; fits already saved there are reused.
 
-    ``masks`` gives each fit its sub-frame masks (None: the difference mask).
+    Every fast mover has its own track (at most ``video.max_objects`` at once; 0: all). In each
+    frame the tracks look for their objects first, longest first, each among the blobs that no
+    other has taken; the blobs left that are objects of their own (:data:`OTHER_SHARE`) start
+    new tracks, largest first. ``masks`` gives each fit its sub-frame masks (None: the
+    difference mask).
 
     Returns:
-        the status of every frame read.
+        the status of every object of every frame read (one ``no_object`` status for a frame
+        without any), in frame order, then track order.
     """
     saved = saved_frames(folder)
     statuses: list[FrameStatus] = []
-    tracker = Tracker(camera, config)
+    numbers = TrackNumbers()
+    live: list[Tracker] = []
+    limit = config.video.max_objects or math.inf
     segment = 0
-    for frame, mask, neighbours in with_neighbours(frames, config):
-        if segment_of(frame) != segment:
-            # A new reference frame: the track's positions were in the last one's coordinates.
-            tracker.lose()
-            segment = segment_of(frame)
-        if not usable(frame):
-            tracker.lose()
-            statuses.append(FrameStatus(frame.index, "failed", note=frame.registered.note))
-            if report is not None:
-                report(statuses[-1], None)
-            continue
-        detection, followed = follow(frame, mask, neighbours, tracker.predictions(frame.index), config)
-        reversed_first = tracker.found(followed)
-        if reversed_first is not None:
-            save_result(folder, reversed_first)  # the track's first frame, now known to run the other way
-        if detection is None:
-            status, result = FrameStatus(frame.index, "no_object"), None
-        else:
-            loaded = load_result(frame_path(folder, frame.index)) if frame.index in saved else None
-            result = loaded
-            try:
-                if result is None:
-                    start = tracker.previous if config.video.warm_start else None
-                    result = fit_detection(frame, detection, camera, config, start, device, masks, tracker.earlier)
-                status = FrameStatus(frame.index, "fitted", detection.box, _others_note(detection, followed))
-            except NoObjectError as exc:
-                status, result = FrameStatus(frame.index, "no_object", detection.box, str(exc)), None
-        if result is not None:
-            track, result, reversed_previous = tracker.add(result, detection.colour if detection is not None else None)
-            status = dataclasses.replace(status, track=track)
-            if reversed_previous is not None:
-                save_result(folder, reversed_previous)
-            if result is not loaded:
-                save_result(folder, result)
-        else:
-            tracker.lose()
+
+    def done(status: FrameStatus, result: FrameResult | None) -> None:
         statuses.append(status)
         if report is not None:
             report(status, result)
+
+    for frame, mask, neighbours in with_neighbours(frames, config):
+        if segment_of(frame) != segment:
+            # A new reference frame: the tracks' positions were in the last one's coordinates.
+            live, segment = [], segment_of(frame)
+        if not usable(frame):
+            live = []
+            done(FrameStatus(frame.index, "failed", note=frame.registered.note), None)
+            continue
+        moving = moving_mask(mask, neighbours, config.detect)
+        found = frame_blobs(moving, config.detect, (frame.pixels, frame.background_pixels))
+        taken: set[int] = set()
+        objects: list[tuple[Tracker, int, int]] = []  # its tracker, the blob's label, others
+        merged: list[tuple[Tracker, int]] = []
+        # Longer tracks choose first: their predictions are the surest.
+        for tracker in sorted(live, key=lambda t: -t.length):
+            predictions = tracker.predictions(frame.index)
+            followed = follow(found, predictions, config, frozenset(taken))
+            if followed is None:
+                crossing = follow(found, predictions, config)
+                if crossing is not None and crossing[0][0] in taken:
+                    tracker.coast(frame.index)  # its streak merged with another track's
+                    merged.append((tracker, crossing[0][0]))
+                else:
+                    tracker.found(None)
+                continue
+            (label, others), option = followed
+            reversed_first = tracker.found(option)
+            if reversed_first is not None:
+                save_result(folder, reversed_first)  # the track's first frame, now known to run the other way
+            taken.add(label)
+            objects.append((tracker, label, others))
+        live = [t for t in live if t.previous is not None]
+        fresh = _new_objects(found, taken, config)
+        room = max(0, int(min(limit, len(fresh) + len(live)) - len(live)))
+        objects += [(Tracker(camera, config, numbers), label, 0) for label in fresh[:room]]
+        untracked = len(fresh) - room
+        owner = {label: tracker for tracker, label, _ in objects}
+        results: list[FrameStatus] = []
+        for tracker, label, others in objects:
+            detection = found.detection(frame.index, label, others)
+            key = (frame.index, tracker.upcoming)
+            loaded = load_result(frame_path(folder, *key)) if key in saved else None
+            note = f"{untracked} other moving object(s) seen, not tracked (video.max_objects)" if untracked else ""
+            crossed = [t for t, lab in merged if lab == label and t.number is not None]
+            if crossed:
+                note = f"its streak merged with track(s) {', '.join(str(t.number) for t in crossed)}'s"
+            try:
+                start = tracker.previous if config.video.warm_start else None
+                result = loaded or fit_detection(
+                    frame, detection, camera, config, start, device, masks, tracker.earlier
+                )
+            except NoObjectError as exc:
+                tracker.lose()
+                results.append(FrameStatus(frame.index, "no_object", detection.box, str(exc)))
+                report_result = None
+            else:
+                track, result, reversed_previous = tracker.add(result, detection.colour)
+                if reversed_previous is not None:
+                    save_result(folder, reversed_previous)
+                if result is not loaded:
+                    save_result(folder, result)
+                if tracker not in live:
+                    live.append(tracker)
+                results.append(FrameStatus(frame.index, "fitted", detection.box, note, track))
+                report_result = result
+            if report is not None:
+                report(results[-1], report_result)
+        for tracker, label in merged:
+            if tracker.previous is not None:
+                into = owner[label].number
+                results.append(
+                    FrameStatus(frame.index, "merged", None, f"its streak merged into track {into}'s", tracker.number)
+                )
+        if not results:
+            results.append(FrameStatus(frame.index, "no_object"))
+            if report is not None:
+                report(results[-1], None)
+        statuses += sorted(results, key=lambda r: -1 if r.track is None else r.track)
     return statuses

@@ -47,20 +47,23 @@ from sfb_video.timing import timed
 
 
 def track_windows(statuses: list[FrameStatus], size: int, overlap: int) -> list[Window]:
-    """The windows of every track of two fitted frames or more, in frame order.
+    """The windows of every track of two fitted frames or more, by first frame (then track).
 
     Args:
-        statuses: every frame's status, in frame order.
+        statuses: every frame's objects' statuses, in frame order.
         size: frames per window; overlap: frames a window shares with the previous one.
     """
     runs: list[Window] = []
+    last: dict[int, Window] = {}  # track -> its latest run
     for s in statuses:
         if s.status != "fitted" or s.track is None:
             continue
-        if runs and runs[-1][0] == s.track and runs[-1][1][-1] == s.index - 1:
-            runs[-1][1].append(s.index)
+        run = last.get(s.track)
+        if run is not None and run[1][-1] == s.index - 1:
+            run[1].append(s.index)
         else:
-            runs.append((s.track, [s.index]))
+            last[s.track] = (s.track, [s.index])
+            runs.append(last[s.track])
     windows: list[Window] = []
     for track, frames in runs:
         if len(frames) < 2:
@@ -68,27 +71,34 @@ def track_windows(statuses: list[FrameStatus], size: int, overlap: int) -> list[
         starts = list(range(0, max(1, len(frames) - overlap), size - overlap))
         starts = sorted({min(s, max(0, len(frames) - size)) for s in starts})
         windows += [(track, frames[s : s + size]) for s in starts]
-    return windows
+    return sorted(windows, key=window_key)
 
 
-def frame_windows(windows: list[Window]) -> dict[int, int]:
-    """Frame index -> the first frame of the window that covers it with the most frames on
-    both sides (its middle nearest; the later window on a tie)."""
-    owner: dict[int, tuple[float, int]] = {}
-    for _, frames in windows:
+def window_key(window: Window) -> tuple[int, int]:
+    """(first frame, track): what names a window in a run folder."""
+    return window[1][0], window[0]
+
+
+def frame_windows(windows: list[Window]) -> dict[tuple[int, int], tuple[int, int]]:
+    """(frame index, track) -> the key of the track's window that covers the frame with the most
+    frames on both sides (its middle nearest; the later window on a tie)."""
+    owner: dict[tuple[int, int], tuple[float, tuple[int, int]]] = {}
+    for track, frames in windows:
         middle = (frames[0] + frames[-1]) / 2
         for index in frames:
             distance = abs(index - middle)
-            if index not in owner or distance <= owner[index][0]:
-                owner[index] = (distance, frames[0])
-    return {index: first for index, (_, first) in owner.items()}
+            if (index, track) not in owner or distance <= owner[index, track][0]:
+                owner[index, track] = (distance, (frames[0], track))
+    return {key: first for key, (_, first) in owner.items()}
 
 
-def previous_window(windows: list[Window], done: dict[int, SavedWindow], track: int, first: int) -> SavedWindow | None:
+def previous_window(
+    windows: list[Window], done: dict[tuple[int, int], SavedWindow], track: int, first: int
+) -> SavedWindow | None:
     """The last accepted window of ``track`` before the one that starts at frame ``first``, or
     None."""
-    earlier = [frames for t, frames in windows if t == track and frames[0] < first]
-    return next((done[f[0]] for f in reversed(earlier) if f[0] in done and done[f[0]].accepted), None)
+    earlier = [window_key(w) for w in windows if w[0] == track and w[1][0] < first]
+    return next((done[k] for k in reversed(earlier) if k in done and done[k].accepted), None)
 
 
 def with_joint(result: FrameResult, window: SavedWindow) -> FrameResult:
@@ -103,13 +113,13 @@ def with_joint(result: FrameResult, window: SavedWindow) -> FrameResult:
     )
 
 
-def final_results(folder: Path) -> dict[int, FrameResult]:
-    """Every fitted frame of a run, by index, as its outputs show it: from the window that
-    stands for it where an accepted joint fit was saved, else its single-frame fit."""
-    windows = {w.frames[0]: w for w in load_windows(folder) if w.accepted}
+def final_results(folder: Path) -> dict[tuple[int, int], FrameResult]:
+    """Every object fitted in a run, by (frame index, track), as its outputs show it: from the
+    window that stands for it where an accepted joint fit was saved, else its single-frame fit."""
+    windows = {w.key: w for w in load_windows(folder) if w.accepted}
     owner = frame_windows([(w.track, w.frames) for w in windows.values()])
     results = load_results(folder)
-    return {i: with_joint(r, windows[owner[i]]) if i in owner else r for i, r in results.items()}
+    return {k: with_joint(r, windows[owner[k]]) if k in owner else r for k, r in results.items()}
 
 
 def window_frame(
@@ -211,39 +221,45 @@ def fit_windows(
         every window's fit, in frame order (a window whose fit diverged is left out).
     """
     windows = track_windows(statuses, config.joint.window, config.joint.overlap)
-    done: dict[int, SavedWindow] = {}
-    for _, members in windows:
-        path = window_path(folder, members[0])
+    done: dict[tuple[int, int], SavedWindow] = {}
+    for window in windows:
+        path = window_path(folder, window[0], window[1][0])
         if path.is_file():
-            done[members[0]] = load_window(path)
-    pending = [w for w in windows if w[1][0] not in done]
-    by_index = {s.index: s for s in statuses}
+            done[window_key(window)] = load_window(path)
+    pending = [w for w in windows if window_key(w) not in done]
+    boxes = {(s.index, s.track): s.box for s in statuses if s.status == "fitted"}
 
-    def single(index: int) -> FrameResult:
-        return load_result(frame_path(folder, index))
+    def single(key: tuple[int, int]) -> FrameResult:
+        return load_result(frame_path(folder, *key))
 
-    crops: dict[int, WindowFrame] = {}
-    needed = {index for _, members in pending for index in members}
+    crops: dict[tuple[int, int], WindowFrame] = {}
+    needed = {(index, track) for track, members in pending for index in members}
+    # A window is fitted once its last frame is read; several tracks' windows may wait at once.
     for frame in frames if pending else ():
-        if frame.index in needed:
-            box = by_index[frame.index].box
-            assert box is not None  # a fitted frame has its detection
-            crops[frame.index] = window_frame(frame, box, single(frame.index), camera, config, device)
-        while pending and pending[0][1][-1] in crops:
-            track, members = pending.pop(0)
+        for key in sorted(k for k in needed if k[0] == frame.index):
+            box = boxes[key]
+            assert box is not None  # a fitted object has its detection
+            crops[key] = window_frame(frame, box, single(key), camera, config, device)
+        ready = [w for w in pending if all((i, w[0]) in crops for i in w[1])]
+        for track, members in ready:
+            pending.remove((track, members))
             previous = previous_window(windows, done, track, members[0])
+            own = {i: crops[i, track] for i in members}
             try:
-                window = fit_track_window(track, members, crops, single, previous, camera, config)
+                window = fit_track_window(
+                    track, members, own, lambda i, t=track: single((i, t)), previous, camera, config
+                )
             except DivergenceError as exc:
                 # Non-finite from the first step: the frames keep their single-frame fits.
                 print(f"joint fit of frames {members[0]}-{members[-1]} skipped: {exc}", file=sys.stderr)
             else:
                 save_window(folder, window)
-                done[members[0]] = window
+                done[window_key((track, members))] = window
                 if report is not None:
                     report(window)
-            keep = {i for _, m in pending for i in m}
-            crops = {i: c for i, c in crops.items() if i in keep}
+        if ready:
+            keep = {(i, t) for t, m in pending for i in m}
+            crops = {k: c for k, c in crops.items() if k in keep}
         if not pending:
             break
-    return [done[members[0]] for _, members in windows if members[0] in done]
+    return [done[window_key(w)] for w in windows if window_key(w) in done]

@@ -169,7 +169,7 @@ def test_the_recorder_stops_at_once_on_a_full_disk_and_leaves_nothing(
             with Recorder(Path(small) / "recording.rrd", camera, "clip") as rec:
                 for i in range(500):
                     rec.log_frame(i, noise(camera.width, camera.height), noise(camera.width, camera.height))
-                    rec.log_detection(i, (0, 0, camera.width // 2, camera.height // 2), mask)
+                    rec.log_detection(i, {0: (0, 0, camera.width // 2, camera.height // 2)}, mask)
         except OutputError as e:
             case.update(error=str(e), frame=i)
         case.update(seconds=time.monotonic() - start, left=listing(small))

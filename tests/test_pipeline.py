@@ -63,7 +63,7 @@ def test_the_object_is_detected_and_fitted_in_every_frame(run: Run) -> None:
 
 
 def test_the_trajectory_is_continuous_between_frames(run: Run) -> None:
-    results = load_results(run.out)
+    results = {i: r for (i, _), r in load_results(run.out).items()}  # one object
     camera = run.clip.camera
     for k in range(1, len(results)):
         predicted = continue_motion(results[k - 1].state.motion, 1, run.config.video.exposure_fraction)
@@ -97,7 +97,7 @@ def test_tsr_video_has_n_times_the_frames(run: Run) -> None:
 
 def test_meshes_load_with_their_texture(run: Run) -> None:
     for k in range(run.config.demo.frames):
-        scene = trimesh.load(run.out / "meshes" / f"frame_{k:05d}.glb")
+        scene = trimesh.load(run.out / "meshes" / f"frame_{k:05d}_track_00.glb")
         mesh = next(iter(scene.geometry.values())) if isinstance(scene, trimesh.Scene) else scene
         assert len(mesh.faces) > 1000
         image = np.asarray(mesh.visual.material.baseColorTexture)
@@ -133,7 +133,7 @@ def test_the_track_is_fitted_jointly_and_the_outputs_follow_it(run: Run) -> None
     assert abs(joint["exposure_fraction"] - run.clip.spec.exposure_fraction) < 0.1
     frame = run.summary["frames"][2]
     assert frame["window"] == 0 and "image" in frame["losses"] and "image" in frame["losses_before"]
-    assert (run.out / "windows" / "window_00000.pt").is_file()
+    assert (run.out / "windows" / "window_00000_track_00.pt").is_file()
     assert (run.out / "meshes" / "track_00.glb").is_file()
 
 
@@ -159,13 +159,13 @@ def test_recording_holds_the_expected_entities(run: Run) -> None:
         "/world/camera/image",
         "/world/camera/image/detection",
         "/world/camera/image/mask",
-        "/world/object",
-        "/world/trajectory",
+        "/world/track_00/object",
+        "/world/trajectory/track_00",
         "/background",
         "/reconstruction",
         "/tsr",
-        "/losses/image",
-        "/fit/image",
+        "/losses/track_00/image",
+        "/fit/track_00/image",
     }
     assert expected <= paths
     tsr_rows = sum(c.num_rows for c in chunks if c.entity_path == "/tsr")
@@ -192,7 +192,7 @@ def test_an_interrupted_run_resumes_from_the_last_finished_frame(
             process_clip(options, run.config, CPU, quiet=True)
     assert not (out / "summary.json").exists()
     saved = sorted(p.name for p in (out / "frames").iterdir())
-    assert saved == ["frame_00000.pt", "frame_00001.pt"]
+    assert saved == ["frame_00000_track_00.pt", "frame_00001_track_00.pt"]
     stamps = {p: p.stat().st_mtime_ns for p in (out / "frames").iterdir()}
     summary = process_clip(options, run.config, CPU, quiet=True)
     assert summary["frames_fitted"] == run.config.demo.frames

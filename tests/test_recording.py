@@ -97,11 +97,12 @@ def record_clip(path: Path, inputs: Inputs, name: str = "clip") -> None:
         for i, image in enumerate(inputs.images):
             rec.log_frame(i, image, inputs.background)
             if i in FITTED:
-                rec.log_detection(i, BOX, inputs.mask)
-                rec.log_fit(i, inputs.state, inputs.reconstruction, inputs.subframes, inputs.losses, inputs.curve)
+                rec.log_detection(i, {0: BOX}, inputs.mask)
+                rec.log_fit(i, 0, inputs.state, inputs.losses, inputs.curve, N_SUB)
+                rec.log_subframes(i, inputs.reconstruction, inputs.subframes)
             else:
-                rec.log_detection(i, None, None)
-            rec.log_trajectory(inputs.trajectory[: i + 1])
+                rec.log_detection(i, {}, None)
+            rec.log_trajectory(inputs.trajectory[: i + 1], 0)
 
 
 @pytest.fixture(scope="module")
@@ -170,15 +171,15 @@ def test_the_recording_holds_every_entity(recorded: Recorded) -> None:
         "/world/camera/image",
         "/world/camera/image/detection",
         "/world/camera/image/mask",
-        "/world/object",
-        "/world/trajectory",
+        "/world/track_00/object",
+        "/world/trajectory/track_00",
         "/background",
         "/reconstruction",
         "/tsr",
-        "/losses/total",
-        "/losses/data\\ term",
-        "/fit/total",
-        "/fit/data\\ term",
+        "/losses/track_00/total",
+        "/losses/track_00/data\\ term",
+        "/fit/track_00/total",
+        "/fit/track_00/data\\ term",
     }
     assert expected <= entity_paths(recorded.chunks)
     assert [e.application_id for e in RrdReader(recorded.path).recordings()] == ["sfb-video"]
@@ -268,7 +269,7 @@ def test_masks_are_named_per_frame_and_subframe_masks_overlay_the_image(inputs: 
 
 def test_mesh_has_the_triangles_texcoords_and_texture_of_the_state(recorded: Recorded) -> None:
     state = recorded.inputs.state
-    entity = "/world/object"
+    entity = "/world/track_00/object"
     assert times(recorded.chunks, entity, "Mesh3D:triangle_indices", "frame") == list(FITTED)
     # Stamped at each fitted frame's first sub-frame too, so the mesh shows while scrubbing sub-frames.
     assert times(recorded.chunks, entity, "Mesh3D:triangle_indices", "subframe") == [i * N_SUB for i in FITTED]
@@ -292,7 +293,7 @@ def test_mesh_has_the_triangles_texcoords_and_texture_of_the_state(recorded: Rec
 
 def test_object_pose_at_mid_exposure_and_at_each_subframe(recorded: Recorded) -> None:
     motion = recorded.inputs.state.motion
-    entity = "/world/object"
+    entity = "/world/track_00/object"
     for i in FITTED:
         rot, pos = motion.at(torch.tensor([0.5]))
         t = one_at(recorded.chunks, entity, "Transform3D:translation", "frame", i)
@@ -311,18 +312,18 @@ def test_object_pose_at_mid_exposure_and_at_each_subframe(recorded: Recorded) ->
 
 def test_losses_and_the_optimisation_curve(recorded: Recorded) -> None:
     inputs = recorded.inputs
-    assert rows(recorded.chunks, "/losses/total", "Scalars:scalars", "frame") == [(i, [0.25]) for i in FITTED]
-    assert times(recorded.chunks, "/losses/data\\ term", "Scalars:scalars", "frame") == list(FITTED)
-    steps = rows(recorded.chunks, "/fit/total", "Scalars:scalars", "step")
+    assert rows(recorded.chunks, "/losses/track_00/total", "Scalars:scalars", "frame") == [(i, [0.25]) for i in FITTED]
+    assert times(recorded.chunks, "/losses/track_00/data\\ term", "Scalars:scalars", "frame") == list(FITTED)
+    steps = rows(recorded.chunks, "/fit/track_00/total", "Scalars:scalars", "step")
     assert sorted(steps) == sorted((s, [inputs.curve[s]["total"]]) for s in range(CURVE_STEPS) for _ in FITTED)
     # Each curve row also carries its frame, so one frame's curve can be picked out.
-    assert times(recorded.chunks, "/fit/total", "Scalars:scalars", "frame") == sorted(
+    assert times(recorded.chunks, "/fit/track_00/total", "Scalars:scalars", "frame") == sorted(
         i for i in FITTED for _ in range(CURVE_STEPS)
     )
 
 
 def test_trajectory_grows_frame_by_frame(recorded: Recorded) -> None:
-    entity = "/world/trajectory"
+    entity = "/world/trajectory/track_00"
     assert times(recorded.chunks, entity, "LineStrips3D:strips", "frame") == [0, 1, 2]
     points = recorded.inputs.trajectory
     assert np.allclose(one_at(recorded.chunks, entity, "LineStrips3D:strips", "frame", 2), points)
@@ -348,7 +349,7 @@ def test_two_recorders_coexist_without_mixing(inputs: Inputs, tmp_path: Path) ->
     for i in range(3):
         first.log_frame(i, inputs.images[i], inputs.background)
         second.log_frame(10 + i, inputs.images[i], inputs.background)
-    second.log_detection(10, BOX, None)
+    second.log_detection(10, {0: BOX}, None)
     first.close()
     second.close()
     a, b = (RrdReader(tmp_path / f"{n}.rrd").stream().to_chunks() for n in "ab")
@@ -364,9 +365,9 @@ def test_same_inputs_give_the_same_recording(recorded: Recorded, tmp_path: Path)
     assert RrdReader(path).stream().collect().summary() == RrdReader(recorded.path).stream().collect().summary()
     again = RrdReader(path).stream().to_chunks()
     for entity, component, timeline in (
-        ("/world/object", "Mesh3D:vertex_positions", "frame"),
+        ("/world/track_00/object", "Mesh3D:vertex_positions", "frame"),
         ("/tsr", "EncodedImage:blob", "subframe"),
-        ("/fit/total", "Scalars:scalars", "step"),
+        ("/fit/track_00/total", "Scalars:scalars", "step"),
     ):
         assert rows(again, entity, component, timeline) == rows(recorded.chunks, entity, component, timeline)
 
@@ -406,7 +407,7 @@ def test_wrong_image_shapes_are_clear_errors(inputs: Inputs, tmp_path: Path) -> 
         with pytest.raises(SfbError, match=r"image must have shape \(3, 48, 64\)"):
             rec.log_frame(0, torch.rand(3, 10, 10), inputs.background)
         with pytest.raises(SfbError, match="subframes"):
-            rec.log_fit(0, inputs.state, inputs.reconstruction, inputs.subframes[0], {}, [])
+            rec.log_subframes(0, inputs.reconstruction, inputs.subframes[0])
         with pytest.raises(SfbError, match="log a frame"):
             rec.log_trajectory(inputs.trajectory)
 

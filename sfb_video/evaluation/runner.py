@@ -42,6 +42,7 @@ from sfb_video.stages.windows import (
     previous_window,
     track_windows,
     window_frame,
+    window_key,
     with_joint,
 )
 from sfb_video.synth import SyntheticClip
@@ -310,7 +311,7 @@ def _joint_rows(
     shows it; a frame's time is its single-frame fit's plus its share of each window's."""
     windows = track_windows(statuses, config.joint.window, config.joint.overlap)
     tracks = {s.index: s.track for s in statuses}
-    done: dict[int, SavedWindow] = {}
+    done: dict[tuple[int, int], SavedWindow] = {}
     seconds = {i: s for i, (_, _, s) in fitted.items()}
     for track, members in windows:
         crops = {}
@@ -320,20 +321,23 @@ def _joint_rows(
         previous = previous_window(windows, done, track, members[0])
         started = time.perf_counter()
         try:
-            done[members[0]] = fit_track_window(track, members, crops, lambda i: fitted[i][1], previous, camera, config)
+            done[members[0], track] = fit_track_window(
+                track, members, crops, lambda i: fitted[i][1], previous, camera, config
+            )
         except DivergenceError as exc:
             # Left out, as the pipeline leaves it out: its frames keep their single-frame fits.
             print(f"{sequence.name}: joint fit of frames {members[0]}-{members[-1]} skipped: {exc}", file=sys.stderr)
         for i in members:
             seconds[i] += (time.perf_counter() - started) / len(members)
-    owner = frame_windows([w for w in windows if w[1][0] in done and done[w[1][0]].accepted])
+    owner = frame_windows([w for w in windows if window_key(w) in done and done[window_key(w)].accepted])
     rows = list(unfitted)
     for index, (frame, result, _) in sorted(fitted.items()):
-        if index in owner:
-            result = with_joint(result, done[owner[index]])
+        key = (index, tracks.get(index))
+        if key in owner:
+            result = with_joint(result, done[owner[key]])
         estimate = estimate_subframes(result, frame, camera, config)
         scores = score_frame(frame, result, estimate, camera, clip)
-        start = "joint" if index in owner else result.start
+        start = "joint" if key in owner else result.start
         row = FrameRow(
             sequence.dataset,
             sequence.name,

@@ -44,11 +44,14 @@ class ObjectState:
         each averaging ``settings.steps_per_subframe`` poses.
 
         Args:
-            background: (3, H, W) matching ``camera``'s image size.
+            background: (3, H, W) matching ``camera``'s image size, or (n, 3, H, W): one per
+                sub-frame (a farther object's sub-frames behind this one).
         """
         steps = settings.steps_per_subframe
         taus = exposure_times(n * steps, background.device).reshape(n, steps)
-        return torch.stack([self.render_blurred(camera, background, t, settings) for t in taus])
+        backgrounds = background if background.dim() == 4 else background.expand(n, *background.shape)
+        pairs = zip(backgrounds, taus, strict=True)
+        return torch.stack([self.render_blurred(camera, b, t, settings) for b, t in pairs])
 
     def render_blurred(
         self, camera: PinholeCamera, background: torch.Tensor, taus: torch.Tensor | int, settings: RenderConfig

@@ -112,7 +112,7 @@ def test_a_replacement_interrupted_keeps_the_old_run_and_resumes(
     _one_line(capsys, "interrupted", "stays as it was", "resume")
     assert _contents(out) == before
     staged = sibling(out, NEW_SUFFIX)
-    assert [p.name for p in (staged / "frames").iterdir()] == ["frame_00000.pt"]
+    assert [p.name for p in (staged / "frames").iterdir()] == ["frame_00000_track_00.pt"]
     args_loud = [a for a in args if a != "--quiet"]
     assert main(args_loud) == 0
     assert "resuming the unfinished replacement" in capsys.readouterr().out
@@ -201,7 +201,7 @@ def test_a_full_disk_mid_run_is_one_line_keeps_the_frames_and_resumes(
     _one_line(capsys, "No space left on device", "run the same command again to resume")
     assert not (out / "summary.json").exists() and not _temporaries(out)
     kept = sorted(p.name for p in (out / "frames").iterdir()) if out.exists() else []
-    assert kept == [f"frame_{i:05d}.pt" for i in range(saved_before)]
+    assert kept == [f"frame_{i:05d}_track_00.pt" for i in range(saved_before)]
     filler[0].unlink()
     assert main([a for a in args if a != "--quiet"]) == 0
     resumed = capsys.readouterr().out
@@ -260,7 +260,7 @@ def test_the_folder_made_read_only_mid_run_keeps_the_frames_and_resumes(
         assert main(args) == 4
     _one_line(capsys, "Read-only file system")
     subprocess.run(["mount", "-o", "remount,rw", str(small_disk)], check=True)
-    assert sorted(p.name for p in (out / "frames").iterdir()) == ["frame_00000.pt", "frame_00001.pt"]
+    assert sorted(p.name for p in (out / "frames").iterdir()) == ["frame_00000_track_00.pt", "frame_00001_track_00.pt"]
     assert not (out / "summary.json").exists() and not _temporaries(out)
     assert main(args) == 0
 

@@ -139,7 +139,7 @@ def test_ctrl_c_exits_130_and_keeps_finished_frames_for_resuming(
     err = capsys.readouterr().err
     assert "interrupted" in err and "resume" in err and "Traceback" not in err
     assert not (out / "summary.json").exists() and not (out / "tsr.mp4").exists()
-    assert [p.name for p in (out / "frames").iterdir()] == ["frame_00000.pt"]
+    assert [p.name for p in (out / "frames").iterdir()] == ["frame_00000_track_00.pt"]
 
 
 @pytest.mark.parametrize(("frames", "message"), [("5:2", "selects no frames"), ("-9:-8", "selects no frames")])

@@ -48,7 +48,7 @@ def test_the_evaluation_and_process_build_the_same_tracks(tmp_path: Path) -> Non
     assert len(set(processed)) < len(processed)  # frames were joined into tracks
 
     # The rule the evaluation had, on process's own fits: it would have cut where the tracker joined.
-    fits = load_results(out)
+    fits = {i: r for (i, _), r in load_results(out).items()}  # one object
     camera = clip_camera(probe(video, config.video), config, None)
     e = config.video.exposure_fraction
     old_rule = [

@@ -87,7 +87,7 @@ def test_the_ray_gap_joins_streaks_a_short_shutter_leaves_far_apart() -> None:
 def test_results_round_trip_through_the_run_folder(tmp_path) -> None:
     result = _result(7, _motion((0.1, 0.2, 5.0), (1.0, 0.5, 0.2), spin=0.3))
     save_result(tmp_path, result)
-    back = load_result(tmp_path / "frames" / "frame_00007.pt")
+    back = load_result(tmp_path / "frames" / "frame_00007_track_00.pt")
     assert back.index == 7 and back.crop_camera == CAMERA and back.losses == result.losses
     assert torch.equal(back.state.texture, result.state.texture)
     assert torch.equal(back.state.topology.edges, result.state.topology.edges)
@@ -101,13 +101,13 @@ def test_subframe_masks_are_saved_and_turn_with_the_result(tmp_path) -> None:
     plain = _result(3, _motion((0.1, 0.2, 5.0), (1.0, 0.5, 0.2)))
     result = dataclasses.replace(plain, mask_source="defmo", masks=masks)
     save_result(tmp_path, result)
-    back = load_result(tmp_path / "frames" / "frame_00003.pt")
+    back = load_result(tmp_path / "frames" / "frame_00003_track_00.pt")
     assert back.mask_source == "defmo" and not back.masks_reversed
     assert (back.masks - masks).abs().max() <= 0.5 / 255 + 1e-6  # kept as 8 bits
     turned = result.reversed()
     assert torch.equal(turned.masks, masks.flip(0)) and turned.masks_reversed
     assert not turned.reversed().masks_reversed
     save_result(tmp_path, plain)
-    again = load_result(tmp_path / "frames" / "frame_00003.pt")
+    again = load_result(tmp_path / "frames" / "frame_00003_track_00.pt")
     assert again.mask_source == "diff" and again.masks is None
     assert plain.reversed().masks is None

@@ -42,10 +42,27 @@ def test_tracks_are_cut_into_overlapping_windows_that_end_at_the_track_s_end() -
     ]
 
 
+def test_two_objects_in_the_same_frames_are_two_tracks_of_windows() -> None:
+    statuses = []
+    for i in range(8):
+        statuses += [FrameStatus(i, "fitted", (0, 0, 4, 4), track=0)]
+        if i >= 2:  # the second object enters at frame 2
+            statuses += [FrameStatus(i, "fitted", (9, 9, 4, 4), track=1)]
+    windows = track_windows(statuses, size=4, overlap=1)
+    assert windows == [
+        (0, [0, 1, 2, 3]),
+        (1, [2, 3, 4, 5]),
+        (0, [3, 4, 5, 6]),
+        (0, [4, 5, 6, 7]),
+        (1, [4, 5, 6, 7]),
+    ]
+
+
 def test_each_frame_is_shown_by_the_window_whose_middle_is_nearest() -> None:
-    owner = frame_windows([(0, [0, 1, 2, 3, 4, 5]), (0, [4, 5, 6, 7, 8, 9]), (1, [12, 13])])
-    assert [owner[i] for i in range(10)] == [0, 0, 0, 0, 0, 4, 4, 4, 4, 4]
-    assert owner[12] == owner[13] == 12 and 11 not in owner
+    owner = frame_windows([(0, [0, 1, 2, 3, 4, 5]), (0, [4, 5, 6, 7, 8, 9]), (1, [12, 13]), (2, [4, 5])])
+    assert [owner[i, 0] for i in range(10)] == [(0, 0)] * 5 + [(4, 0)] * 5
+    assert owner[12, 1] == owner[13, 1] == (12, 1) and (11, 1) not in owner
+    assert owner[4, 2] == owner[5, 2] == (4, 2)  # another object's window in the same frames
 
 
 def _seeds(path: list[torch.Tensor]) -> list[Seed]:
