@@ -109,8 +109,8 @@ def clip_arguments() -> argparse.ArgumentParser:
     clip.add_argument("--stabilised", action="store_true", help=STABILISED)
     clip.add_argument(
         "--max-objects",
-        type=at_least(1),
-        help="track at most N objects at once (default: video.max_objects, 0: every fast mover)",
+        type=at_least(0),
+        help="track at most N objects at once, 0: every fast mover (default: video.max_objects, 1)",
     )
     return clip
 

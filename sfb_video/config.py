@@ -324,9 +324,10 @@ class VideoConfig(_Checked):
     """Sub-frames rendered per blurred frame in ``tsr.mp4``."""
     warm_start: bool = True
     """Start each frame of a track from the previous frame's result (off: every frame cold)."""
-    max_objects: int = bounded(0, ge=0)
+    max_objects: int = bounded(1, ge=0)
     """Objects tracked at once: every fast mover has its own track, up to this many (0: all);
-    1 follows one object, the others left in a frame's note."""
+    1 (the default until several objects are measured, benchmarks/RESULTS.md) follows one
+    object, the others left in a frame's note."""
     track_prototypes: tuple[str, ...] = one_of(("sphere", "sphere_large", "torus"), PROTOTYPE_NAMES)
     """Prototypes tried on the first frame of a track (the paper's cold start tries them all);
     other cold starts use ``fit.prototypes``."""
