@@ -140,11 +140,18 @@ class Unwarped(Sequence[torch.Tensor]):
         return blended.round_().to(torch.uint8) if original.dtype == torch.uint8 else blended
 
 
+def mapped_back(frame: FrameWithBackground, config: Config) -> bool:
+    """Whether the outputs show ``frame`` as filmed, mapped back from its reference's pixels
+    (a registered frame, unless ``camera.stabilised``)."""
+    return not (frame.registered is None or frame.registered.failed or config.camera.stabilised)
+
+
 def as_filmed(frame: FrameWithBackground, subframes: Pasted, config: Config) -> Sequence[torch.Tensor]:
     """The sub-frames ``tsr.mp4`` shows: in the frame as filmed, or for a still camera (or
     ``camera.stabilised``) as rendered."""
-    if frame.registered is None or frame.registered.failed or config.camera.stabilised:
+    if not mapped_back(frame, config):
         return subframes
+    assert frame.registered is not None
     return Unwarped(subframes, frame.registered)
 
 
@@ -202,6 +209,13 @@ def streak_box(result: FrameResult, camera: PinholeCamera) -> Box:
     return x0, y0, x1 - x0, y1 - y0
 
 
+def _export_size(box: Box, config: Config) -> tuple[int, int]:
+    """The (width, height) a region ``box`` is rendered at: at most ``render.export_max_width``."""
+    _, _, w, h = box
+    scale = min(1.0, config.render.export_max_width / w)
+    return max(1, round(w * scale)), max(1, round(h * scale))
+
+
 def render_patches(
     state: ObjectState, camera: PinholeCamera, box: Box, background: torch.Tensor, n: int, config: Config
 ) -> torch.Tensor:
@@ -211,8 +225,7 @@ def render_patches(
     A box wider than ``render.export_max_width`` is rendered at that width and the object scaled
     up onto it; the background keeps its own pixels."""
     x, y, w, h = box
-    scale = min(1.0, config.render.export_max_width / w)
-    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    size = _export_size(box, config)
     small_bg = _resize(background, size)
     patches = state.render_subframes(camera.crop(x, y, w, h, *size), small_bg, n, config.render)
     if size != (w, h):
@@ -250,8 +263,7 @@ def render_frame(
     if n * config.render.steps_per_subframe < BLUR_POSES:
         # Few sub-frames average into a few sharp copies, not the frame's blur: the quality
         # signal would depend on the TSR factor.
-        scale = min(1.0, config.render.export_max_width / w)
-        size = (max(1, round(w * scale)), max(1, round(h * scale)))
+        size = _export_size(box, config)
         small_bg = _resize(patch_bg, size)
         camera_box = camera.crop(x, y, w, h, *size)
         blurred = patch_bg + _resize(
@@ -525,7 +537,8 @@ def export_frames(
                     )
                     if frame.index + 1 in window.result.losses:
                         rows += gap_rows(window.result.trajectory, frame.index, camera, n, fps, diameter)
-                if not (frame.registered is None or frame.registered.failed or config.camera.stabilised):
+                if mapped_back(frame, config):
+                    assert frame.registered is not None and frame.registered.to_reference is not None
                     _to_frame(rows, frame.registered.to_reference)
                 points = trajectory.setdefault(result.track, [])
                 points.append(np.array([[r["x"], r["y"], r["z"]] for r in rows], dtype=np.float32))

@@ -373,19 +373,15 @@ def track_and_fit(
     live: list[Tracker] = []
     limit = config.video.max_objects or math.inf
     segment = 0
-
-    def done(status: FrameStatus, result: FrameResult | None) -> None:
-        statuses.append(status)
-        if report is not None:
-            report(status, result)
-
     for frame, mask, neighbours in with_neighbours(frames, config):
         if segment_of(frame) != segment:
             # A new reference frame: the tracks' positions were in the last one's coordinates.
             live, segment = [], segment_of(frame)
         if not usable(frame):
             live = []
-            done(FrameStatus(frame.index, "failed", note=frame.registered.note), None)
+            statuses.append(FrameStatus(frame.index, "failed", note=frame.registered.note))
+            if report is not None:
+                report(statuses[-1], None)
             continue
         moving = moving_mask(mask, neighbours, config.detect)
         found = frame_blobs(moving, config.detect, (frame.pixels, frame.background_pixels))

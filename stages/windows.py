@@ -233,10 +233,13 @@ def fit_windows(
         return load_result(frame_path(folder, *key))
 
     crops: dict[tuple[int, int], WindowFrame] = {}
-    needed = {(index, track) for track, members in pending for index in members}
+    needed: dict[int, set[int]] = {}  # frame index -> the tracks whose crops it gives
+    for track, members in pending:
+        for index in members:
+            needed.setdefault(index, set()).add(track)
     # A window is fitted once its last frame is read; several tracks' windows may wait at once.
     for frame in frames if pending else ():
-        for key in sorted(k for k in needed if k[0] == frame.index):
+        for key in [(frame.index, t) for t in sorted(needed.get(frame.index, ()))]:
             box = boxes[key]
             assert box is not None  # a fitted object has its detection
             crops[key] = window_frame(frame, box, single(key), camera, config, device)
