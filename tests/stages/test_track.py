@@ -1,12 +1,23 @@
-"""Tracking's frame plumbing: which neighbouring masks the slow-mover test sees."""
+"""Tracking: which neighbouring masks the slow-mover test sees, and a track per fast mover."""
 
 from __future__ import annotations
 
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
 import torch
 
+from benchmarks import detect as detect_benchmark
+from benchmarks.detect import box_iou
 from sfb_video.config import load_config
-from sfb_video.stages.track import with_neighbours
-from sfb_video.stages.types import FrameWithBackground
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.run_folder import saved_frames
+from sfb_video.stages.background import running_median
+from sfb_video.stages.track import track_and_fit, with_neighbours
+from sfb_video.stages.types import Frame, FrameStatus, FrameWithBackground
+from sfb_video.synth import generate_clip
 
 
 def _frames(count: int) -> list[FrameWithBackground]:
@@ -39,3 +50,34 @@ def test_the_neighbours_are_two_frames_away_and_never_adjacent_where_the_clip_is
     assert _neighbours(8) == {0: [2], 1: [3], 2: [0, 4], 3: [-1, 5], 4: [-2, 6], 5: [-3, 7], 6: [-4], 7: [-5]}
     assert _neighbours(3) == {0: [2], 1: [0, 2], 2: [0]}
     assert _neighbours(2) == {0: [1], 1: [0]}
+
+
+def _two_movers() -> tuple[list[FrameWithBackground], list[list[tuple[int, int, int, int]]]]:
+    """A generated ball clip with a box clip's object composited in (benchmarks.detect's two
+    movers), its frames with a running median, and per frame the two objects' true boxes."""
+    spec = dataclasses.replace(detect_benchmark.BASE, num_frames=6)
+    clip = generate_clip(spec)
+    other = generate_clip(dataclasses.replace(spec, shape="box", seed=7))
+    pixels = detect_benchmark._add_object(clip.frames, other)
+    frames = [Frame(k, torch.from_numpy(np.ascontiguousarray(f.transpose(2, 0, 1)))) for k, f in enumerate(pixels)]
+    truth = [[t.bbox, o.bbox] for t, o in zip(clip.truth, other.truth, strict=True)]
+    return list(running_median(iter(frames), 5)), truth
+
+
+@pytest.mark.parametrize("max_objects", [0, 1])
+def test_every_fast_mover_has_its_own_track_unless_one_is_asked_for(tmp_path: Path, max_objects: int) -> None:
+    frames, truth = _two_movers()
+    config = load_config("fast", [f"video.max_objects={max_objects}"])
+    camera = PinholeCamera.from_fov(320, 240, config.camera.fov_y_deg)
+    statuses = track_and_fit(iter(frames), tmp_path, camera, config, torch.device("cpu"))
+    fitted = [s for s in statuses if s.status == "fitted"]
+    tracks: dict[int, list[FrameStatus]] = {}
+    for s in fitted:
+        tracks.setdefault(s.track, []).append(s)
+    long = [t for t, own in tracks.items() if len(own) >= 5]
+    assert len(long) == (2 if max_objects == 0 else 1), {t: [s.index for s in own] for t, own in tracks.items()}
+    for track in long:
+        # A track follows one object: the same true box is the best match in all its frames.
+        matched = {max(range(2), key=lambda j: box_iou(s.box, truth[s.index][j])) for s in tracks[track]}
+        assert len(matched) == 1
+    assert len(saved_frames(tmp_path)) == len(fitted)  # each object's fit saved on its own
