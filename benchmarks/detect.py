@@ -33,6 +33,7 @@ import numpy as np
 import torch
 
 from sfb_video.config import Config, load_config
+from sfb_video.evaluation.objects import box_iou
 from sfb_video.registration import register_frames
 from sfb_video.stages.background import running_median
 from sfb_video.stages.detect import choose_blob, moving_mask
@@ -84,14 +85,6 @@ def _add_object(frames: np.ndarray, other: SyntheticClip) -> np.ndarray:
         cover = truth.masks.mean(0)[..., None]
         out[k] = out[k] * (1 - cover) + other.frames[k].astype(np.float64) - (1 - cover) * background
     return np.clip(np.round(out), 0, 255).astype(np.uint8)
-
-
-def box_iou(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> float:
-    """IoU of two (x, y, w, h) pixel boxes."""
-    ix = max(0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
-    iy = max(0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
-    inter = ix * iy
-    return inter / float(a[2] * a[3] + b[2] * b[3] - inter)
 
 
 CAMERAS = ("still", "shaken", "panning")

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 import torch
 
-from benchmarks.detect import aerobie_clip, box_iou
+from benchmarks.detect import aerobie_clip
 from sfb_video.config import load_config
+from sfb_video.evaluation.objects import box_iou
 from sfb_video.stages.background import running_median, with_backgrounds
 from sfb_video.stages.detect import choose_blob, moving_mask
 from sfb_video.stages.process import ProcessOptions, process_clip

@@ -29,9 +29,11 @@ def render_estimate(
     state: ObjectState, camera: PinholeCamera, box: Box, background: np.ndarray, n: int, settings: RenderConfig
 ) -> np.ndarray:
     """(N, h, w, 3) float64: the ``n`` sub-frames ``state`` renders on ``box`` of the full-frame
-    ``camera``, over the (H, W, 3) ``background`` in [0, 1]: what a method hands the benchmark."""
+    ``camera``, over the (H, W, 3) ``background`` in [0, 1], or the (n, H, W, 3) one of each
+    sub-frame (other objects behind or beside it): what a method hands the benchmark."""
     x, y, w, h = box
-    patch = torch.from_numpy(np.ascontiguousarray(background[y : y + h, x : x + w])).permute(2, 0, 1).float()
+    patch = np.ascontiguousarray(background[..., y : y + h, x : x + w, :])
+    patch = torch.from_numpy(patch).movedim(-1, -3).float()
     rendered = state.render_subframes(camera.crop(x, y, w, h, w, h), patch, n, settings)
     return rendered.permute(0, 2, 3, 1).numpy().astype(np.float64)
 
