@@ -328,6 +328,9 @@ class VideoConfig(_Checked):
     """Objects tracked at once: every fast mover has its own track, up to this many (0: all);
     1 (the default until several objects are measured, benchmarks/RESULTS.md) follows one
     object, the others left in a frame's note."""
+    min_track_frames: int = bounded(3, ge=1)
+    """A track fitted in fewer frames than this is not an object (a flicker, a shred of an arm)
+    and is left out of the outputs, unless no track of the clip is longer."""
     track_prototypes: tuple[str, ...] = one_of(("sphere", "sphere_large", "torus"), PROTOTYPE_NAMES)
     """Prototypes tried on the first frame of a track (the paper's cold start tries them all);
     other cold starts use ``fit.prototypes``."""

@@ -295,10 +295,41 @@ class FrameBlobs:
     def area(self, label: int) -> float:
         return float(self.stats[label, cv2.CC_STAT_AREA])
 
-    def detection(self, index: int, label: int, others: int = 0) -> Detection:
-        """Blob ``label`` as frame ``index``'s detection."""
-        x, y, w, h = (int(v) for v in self.stats[label, :4])
-        return Detection(index, (x, y, w, h), torch.from_numpy(self.labels == label), others, self.colour(label))
+    def detection(self, index: int, label: int, others: int = 0, part: np.ndarray | None = None) -> Detection:
+        """Blob ``label`` as frame ``index``'s detection, or the ``part`` of it (an (H, W) bool
+        mask, :meth:`split`) that is one object's where two objects' streaks touch."""
+        if part is None:
+            x, y, w, h = (int(v) for v in self.stats[label, :4])
+            return Detection(index, (x, y, w, h), torch.from_numpy(self.labels == label), others, self.colour(label))
+        rows, cols = np.nonzero(part.any(1))[0], np.nonzero(part.any(0))[0]
+        box = (int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1))
+        colour = None if self.pixels is None else blob_colour(*self.pixels, part)
+        return Detection(index, box, torch.from_numpy(part), others, colour)
+
+    def split(self, label: int, predictions: list[Prediction], min_area: float) -> list[np.ndarray] | None:
+        """Blob ``label`` shared out among the objects whose streaks ``predictions`` foresee
+        touching in it: each pixel to the nearest predicted streak (the segment between its
+        ends, less the object's radius). (H, W) bool masks in the predictions' order, or None
+        where a prediction has no ends or a part would be smaller than ``min_area`` pixels."""
+        if any(p.ends is None for p in predictions):
+            return None
+        v, u = np.nonzero(self.labels == label)
+        points = np.stack((u, v), 1).astype(np.float64)
+        distances = []
+        for p in predictions:
+            a, b = (np.array(e, dtype=np.float64) for e in p.ends)  # type: ignore[union-attr]
+            along = np.clip((points - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-9), 0.0, 1.0)
+            nearest = a + along[:, None] * (b - a)
+            distances.append(np.linalg.norm(points - nearest, axis=1) - p.diameter / 2)
+        owner = np.argmin(np.stack(distances), axis=0)
+        parts = []
+        for k in range(len(predictions)):
+            part = np.zeros(self.labels.shape, dtype=bool)
+            part[v[owner == k], u[owner == k]] = True
+            if part.sum() < min_area:
+                return None
+            parts.append(part)
+        return parts
 
 
 def frame_blobs(

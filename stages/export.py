@@ -526,7 +526,7 @@ def export_frames(
                 recorder.log_quality(frame.index, result.track, rendered.explained)
                 order = _mask_order(result)
                 source = result.mask_source if order is None else f"{result.mask_source}, order {order}"
-                recorder.log_masks(frame.index, source, result.crop_box, result.masks, n)
+                recorder.log_masks(frame.index, source, result.crop_box, result.masks, n, result.track)
                 write_glb(result.state, mesh_path(folder, frame.index, result.track))
                 rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
                 record = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)

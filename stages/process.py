@@ -200,6 +200,7 @@ def _summary(
         "objects_fitted": len(fits),
         "frames_without_object": len({s.index for s in statuses if s.status == "no_object"} - fitted),
         "frames_with_other_movers": len({s.index for s in statuses if "other moving object" in s.note}),
+        "dropped_tracks": sorted({s.track for s in statuses if s.status == "dropped"}),
         "cold_starts": sum(f["start"] == "cold" for f in fits),
         "warm_starts": sum(f["start"] == "warm" for f in fits),
         "mean_seconds_cold": mean("seconds", "cold"),
@@ -388,13 +389,17 @@ def _process(
     frames = with_backgrounds(options.video, config.video, info.frame_count, selected, options.background, motion)
     # disable=None: no bar when stderr is not a terminal (logs, CI).
     with tqdm(total=total, unit="frame", desc=printable(options.video.name), disable=True if quiet else None) as bar:
+        counted: set[int] = set()  # the bar counts frames; a frame of several objects reports each
 
         def report(status: FrameStatus, result: FrameResult | None) -> None:
-            bar.update(1)
+            if status.index not in counted:
+                counted.add(status.index)
+                bar.update(1)
             if on_frame is not None:
                 on_frame(status)
             if result is not None:
-                bar.set_postfix(frame=status.index, start=result.start, L_I=f"{result.losses['image']:.4f}")
+                postfix = {"frame": status.index, "track": status.track, "start": result.start}
+                bar.set_postfix(postfix | {"L_I": f"{result.losses['image']:.4f}"})
 
         statuses = track_and_fit(frames, run.work, camera, config, device, masks, report)
     if not statuses:

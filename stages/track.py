@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from sfb_video.config import Config
@@ -48,9 +49,11 @@ StepReport = Callable[[FrameStatus, FrameResult | None], None]
 
 
 def predict(motion: Motion, camera: PinholeCamera) -> Prediction:
-    """Where ``motion``'s streak appears in ``camera``: the centre of its middle, its diameter."""
-    uv, depth = camera.project(motion.x0 + 0.5 * motion.dx)
-    return Prediction((float(uv[0]), float(uv[1])), float(camera.fy / depth))
+    """Where ``motion``'s streak appears in ``camera``: the centre of its middle, its diameter
+    and its ends."""
+    uv, depth = camera.project(torch.stack((motion.x0 + 0.5 * motion.dx, motion.x0, motion.x0 + motion.dx)))
+    ends = ((float(uv[1, 0]), float(uv[1, 1])), (float(uv[2, 0]), float(uv[2, 1])))
+    return Prediction((float(uv[0, 0]), float(uv[0, 1])), float(camera.fy / depth[0]), ends=ends)
 
 
 def join_gap(previous: FrameResult, current: FrameResult, camera: PinholeCamera, exposure_fraction: float) -> float:
@@ -152,7 +155,7 @@ def follow(
     predictions: list[tuple[Prediction, FrameResult]],
     config: Config,
     taken: frozenset[int] = frozenset(),
-) -> tuple[tuple[int, int], FrameResult] | None:
+) -> tuple[tuple[int, int], FrameResult, Prediction] | None:
     """Find a track's object among a frame's blobs but the ``taken`` ones (other tracks'), near
     where the track predicts it (:meth:`Tracker.predictions`).
 
@@ -161,18 +164,19 @@ def follow(
     track's colour are preferred.
 
     Returns:
-        the blob (its label and how many others could have been it, :func:`pick_blob`) and the
-        track's last frame in the direction that predicted it; None when no blob is near.
+        the blob (its label and how many others could have been it, :func:`pick_blob`), the
+        track's last frame in the direction that predicted it and that prediction; None when no
+        blob is near.
     """
-    best: tuple[float, tuple[int, int], FrameResult] | None = None
+    best: tuple[float, tuple[int, int], FrameResult, Prediction] | None = None
     for prediction, option in predictions:
         picked = pick_blob(found, prediction, config.detect, taken)
         if picked is not None:
             x, y, w, h = (float(v) for v in found.stats[picked[0], :4])
             distance = math.hypot(x + w / 2 - prediction.centre[0], y + h / 2 - prediction.centre[1])
             if best is None or distance < best[0]:
-                best = (distance, picked, option)
-    return None if best is None else (best[1], best[2])
+                best = (distance, picked, option, prediction)
+    return None if best is None else (best[1], best[2], best[3])
 
 
 def follow_box(
@@ -208,6 +212,10 @@ def follow_box(
     return detection, None if best is None else best[1]
 
 
+MAX_COAST = 3
+"""Frames a track goes on through without a clean fit of its own: its streak merged into another
+track's blob, or shared out with it (two objects crossing)."""
+
 COLOUR_MEMORY = 0.7
 """A track's colour is this much its past frames' and the rest its newest blob's: one frame whose
 blob took in a piece of the arm holding the ball does not make the track look for skin."""
@@ -238,8 +246,8 @@ class Tracker:
     motion continued across the gap (turning as it turned), predicts it (:func:`follow`, or
     :func:`follow_box` for a given box); the frames then join end to start (:func:`join`),
     which fixes the time direction of a track's first frame. A frame that is not the next one,
-    or has no object, ends the track, but for one frame in which the object's streak merged with
-    another track's (:meth:`coast`).
+    or has no object, ends the track, but for up to :data:`MAX_COAST` frames in which the
+    object's streak merged with another track's (:meth:`coast`) or was shared out with it.
 
     Attributes:
         previous: the track's last fitted frame (the warm start of the next); earlier: the one
@@ -256,7 +264,7 @@ class Tracker:
         self.colour: tuple[float, float, float] | None = None
         self.length = 0
         self.number: int | None = None
-        self.coasted: int | None = None
+        self.coasting = 0  # frames since ``previous`` its streak shared or merged with another's
 
     @property
     def upcoming(self) -> int:
@@ -269,25 +277,45 @@ class Tracker:
         track that goes on into this frame."""
         if self.previous is not None:
             gap = index - self.previous.index
-            if gap != 1 and not (gap == 2 and self.coasted == index - 1):
+            if gap != 1 + self.coasting:
                 self.lose()
         self.earlier = self.earlier if self.length >= 2 else None
         if self.previous is None:
             return []
         options = [self.previous, self.previous.reversed()] if self.length == 1 else [self.previous]
+        if self.coasting and self.earlier is not None:
+            return [(self._glided(index), self.previous)]
         e = self.config.video.exposure_fraction
         return [
             (dataclasses.replace(predict(continued(o, self.earlier, index, e), self.camera), colour=self.colour), o)
             for o in options
         ]
 
-    def coast(self, index: int) -> None:
-        """Keep the track through frame ``index``, where its object's streak merged into another
-        track's blob: the next frame is looked for two frames on from the track's last one."""
-        if self.coasted == index - 1:  # one frame at most
+    def _glided(self, index: int) -> Prediction:
+        """Frame ``index``'s prediction past frames without a clean fit: the last clean streak
+        moved on in the image at the pace of the last two. Over several frames this is surer than
+        the 3D motion continued, whose depth speed and turn, a little off, carry it far away."""
+        assert self.previous is not None and self.earlier is not None
+        last, before = predict(self.previous.state.motion, self.camera), predict(self.earlier.state.motion, self.camera)
+        pace = [
+            (a - b) / (self.previous.index - self.earlier.index)
+            for a, b in zip(last.centre, before.centre, strict=True)
+        ]
+        steps = index - self.previous.index
+
+        def on(point: tuple[float, float]) -> tuple[float, float]:
+            return point[0] + steps * pace[0], point[1] + steps * pace[1]
+
+        ends = None if last.ends is None else (on(last.ends[0]), on(last.ends[1]))
+        return Prediction(on(last.centre), last.diameter, self.colour, ends)
+
+    def coast(self) -> None:
+        """Keep the track through this frame, where its object's streak merged into another
+        track's blob: the next frame is predicted from the track's last clean one, for at most
+        :data:`MAX_COAST` frames of streaks merged or shared."""
+        self.coasting += 1
+        if self.coasting > MAX_COAST:
             self.lose()
-        else:
-            self.coasted = index
 
     def found(self, followed: FrameResult | None) -> FrameResult | None:
         """Take what :func:`follow` found: the track's last frame in the direction that predicted
@@ -303,9 +331,12 @@ class Tracker:
         return None
 
     def add(
-        self, result: FrameResult, colour: tuple[float, float, float] | None
+        self, result: FrameResult, colour: tuple[float, float, float] | None, shared: bool = False
     ) -> tuple[int, FrameResult, FrameResult | None]:
-        """Add a fitted frame to the track (a new one when none goes on).
+        """Add a fitted frame to the track (a new one when none goes on). A ``shared`` frame, whose
+        blob was shared out with another track's (:meth:`FrameBlobs.split`), is joined in the
+        track's direction but predicts nothing: its fit saw the other object too, and the next
+        frame is predicted from the last clean one (as :meth:`coast` does).
 
         Returns:
             the track's number, ``result`` in the track's time direction (and numbered so), and
@@ -320,19 +351,22 @@ class Tracker:
         reversed_previous = None
         if self.previous is not None:
             e = self.config.video.exposure_fraction
-            before, result = join(self.previous, result, self.camera, e, self.length == 1)
+            before, result = join(self.previous, result, self.camera, e, self.length == 1 and not shared)
             if before is not self.previous:
                 reversed_previous = before
+        if shared and self.previous is not None:
+            self.coast()
+            return self.number, result, reversed_previous
         self.colour = _blend(self.colour if self.length else None, colour)
-        self.earlier, self.previous, self.length = self.previous, result, self.length + 1
+        self.earlier, self.previous, self.length, self.coasting = self.previous, result, self.length + 1, 0
         return self.number, result, reversed_previous
 
     def lose(self) -> None:
         """End the track: the next object found starts a new one."""
-        self.previous, self.length, self.coasted = None, 0, None
+        self.previous, self.length, self.coasting = None, 0, 0
 
 
-OTHER_SHARE = 0.25
+OTHER_SHARE = 0.1
 """A blob that no track follows starts a new one when it is at least this share of the frame's
 largest blob: another fast mover, not a speck of noise or a shred of a slow one."""
 
@@ -386,41 +420,50 @@ def track_and_fit(
         moving = moving_mask(mask, neighbours, config.detect)
         found = frame_blobs(moving, config.detect, (frame.pixels, frame.background_pixels))
         taken: set[int] = set()
-        objects: list[tuple[Tracker, int, int]] = []  # its tracker, the blob's label, others
+        objects: list[_Claim] = []
         merged: list[tuple[Tracker, int]] = []
         # Longer tracks choose first: their predictions are the surest.
         for tracker in sorted(live, key=lambda t: -t.length):
             predictions = tracker.predictions(frame.index)
-            followed = follow(found, predictions, config, frozenset(taken))
+            followed = follow(found, predictions, config)
+            claim = None
+            if followed is not None and followed[0][0] in taken:
+                # Its best blob is another track's too: their streaks touch or cross. Shared out
+                # if it can be; else the best blob left, or none (the track coasts).
+                claim = _shared(found, followed, objects, tracker, config)
+                if claim is None:
+                    crossing, followed = followed, follow(found, predictions, config, frozenset(taken))
+                    if followed is None:
+                        tracker.coast()
+                        merged.append((tracker, crossing[0][0]))
+                        continue
             if followed is None:
-                crossing = follow(found, predictions, config)
-                if crossing is not None and crossing[0][0] in taken:
-                    tracker.coast(frame.index)  # its streak merged with another track's
-                    merged.append((tracker, crossing[0][0]))
-                else:
-                    tracker.found(None)
+                tracker.found(None)
                 continue
-            (label, others), option = followed
+            (label, others), option, prediction = followed
             reversed_first = tracker.found(option)
             if reversed_first is not None:
                 save_result(folder, reversed_first)  # the track's first frame, now known to run the other way
             taken.add(label)
-            objects.append((tracker, label, others))
+            objects.append(claim or _Claim(tracker, label, others, prediction))
         live = [t for t in live if t.previous is not None]
         fresh = _new_objects(found, taken, config)
         room = max(0, int(min(limit, len(fresh) + len(live)) - len(live)))
-        objects += [(Tracker(camera, config, numbers), label, 0) for label in fresh[:room]]
+        objects += [_Claim(Tracker(camera, config, numbers), label, 0, None) for label in fresh[:room]]
         untracked = len(fresh) - room
-        owner = {label: tracker for tracker, label, _ in objects}
+        owner = {c.label: c.tracker for c in objects}
         results: list[FrameStatus] = []
-        for tracker, label, others in objects:
-            detection = found.detection(frame.index, label, others)
+        for claim in objects:
+            tracker, label = claim.tracker, claim.label
+            detection = found.detection(frame.index, label, claim.others, claim.part)
             key = (frame.index, tracker.upcoming)
             loaded = load_result(frame_path(folder, *key)) if key in saved else None
             note = f"{untracked} other moving object(s) seen, not tracked (video.max_objects)" if untracked else ""
             crossed = [t for t, lab in merged if lab == label and t.number is not None]
             if crossed:
                 note = f"its streak merged with track(s) {', '.join(str(t.number) for t in crossed)}'s"
+            if claim.shared_with is not None:
+                note = f"its streak touched track {claim.shared_with.number}'s: their pixels shared out by nearness"
             try:
                 start = tracker.previous if config.video.warm_start else None
                 result = loaded or fit_detection(
@@ -431,7 +474,8 @@ def track_and_fit(
                 results.append(FrameStatus(frame.index, "no_object", detection.box, str(exc)))
                 report_result = None
             else:
-                track, result, reversed_previous = tracker.add(result, detection.colour)
+                shared = claim.shared_with is not None
+                track, result, reversed_previous = tracker.add(result, detection.colour, shared)
                 if reversed_previous is not None:
                     save_result(folder, reversed_previous)
                 if result is not loaded:
@@ -453,4 +497,57 @@ def track_and_fit(
             if report is not None:
                 report(results[-1], None)
         statuses += sorted(results, key=lambda r: -1 if r.track is None else r.track)
-    return statuses
+    return short_tracks_dropped(statuses, config.video.min_track_frames)
+
+
+@dataclass
+class _Claim:
+    """A track's claim on a blob of one frame: the blob, how many others could have been its
+    object, the prediction that found it, and where two tracks' streaks touch in it, the part
+    of it that is this track's (:meth:`FrameBlobs.split`) and the track it was shared with."""
+
+    tracker: Tracker
+    label: int
+    others: int
+    prediction: Prediction | None
+    part: np.ndarray | None = None
+    shared_with: Tracker | None = None
+
+
+def _shared(
+    found: FrameBlobs,
+    crossing: tuple[tuple[int, int], FrameResult, Prediction],
+    claims: list[_Claim],
+    tracker: Tracker,
+    config: Config,
+) -> _Claim | None:
+    """Where ``tracker``'s object is in a blob another track took first (their streaks touch or
+    cross), the blob shared out between the two by nearness to their predicted streaks: this
+    track's claim, the first's narrowed to its own part. None where it cannot be shared (the
+    first has no prediction or already shares, or a part would be too small): then the track
+    coasts through the frame."""
+    (label, _), _, prediction = crossing
+    first = next(c for c in claims if c.label == label)
+    if first.prediction is None or first.part is not None:
+        return None
+    parts = found.split(label, [first.prediction, prediction], config.detect.min_area_px)
+    if parts is None:
+        return None
+    first.part, first.shared_with = parts[0], tracker
+    return _Claim(tracker, label, 0, prediction, parts[1], first.tracker)
+
+
+def short_tracks_dropped(statuses: list[FrameStatus], least: int) -> list[FrameStatus]:
+    """``statuses`` with every track fitted in fewer than ``least`` frames ``dropped`` (its fits
+    stay saved, for a resumed run to reuse), unless no track is longer: then the longest is kept."""
+    lengths = Counter(s.track for s in statuses if s.status == "fitted")
+    kept = {t for t, n in lengths.items() if n >= least}
+    if lengths and not kept:
+        kept = {min(lengths, key=lambda t: (-lengths[t], t))}
+    out = []
+    for s in statuses:
+        if s.track is not None and s.track not in kept and s.status in ("fitted", "merged"):
+            note = f"track {s.track} was fitted in {lengths[s.track]} frame(s), fewer than video.min_track_frames"
+            s = dataclasses.replace(s, status="dropped", note=note)
+        out.append(s)
+    return out

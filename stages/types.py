@@ -110,11 +110,14 @@ class Detection:
 @dataclass(frozen=True)
 class Prediction:
     """Where a tracked object should appear: the (u, v) pixel centre of its next exposure's
-    streak, its apparent diameter in pixels, and its track's chromaticity (of its blobs so far)."""
+    streak, its apparent diameter in pixels, its track's chromaticity (of its blobs so far), and
+    the (u, v) ends of the streak (where two tracks' streaks touch, their pixels are shared out
+    by nearness to them)."""
 
     centre: tuple[float, float]
     diameter: float
     colour: tuple[float, float, float] | None = None
+    ends: tuple[tuple[float, float], tuple[float, float]] | None = None
 
 
 @dataclass(frozen=True)

@@ -10,12 +10,12 @@ import pytest
 import torch
 
 from benchmarks import detect as detect_benchmark
-from benchmarks.detect import box_iou
 from sfb_video.config import load_config
+from sfb_video.evaluation.objects import box_iou
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.run_folder import saved_frames
 from sfb_video.stages.background import running_median
-from sfb_video.stages.track import track_and_fit, with_neighbours
+from sfb_video.stages.track import short_tracks_dropped, track_and_fit, with_neighbours
 from sfb_video.stages.types import Frame, FrameStatus, FrameWithBackground
 from sfb_video.synth import generate_clip
 
@@ -81,3 +81,17 @@ def test_every_fast_mover_has_its_own_track_unless_one_is_asked_for(tmp_path: Pa
         matched = {max(range(2), key=lambda j: box_iou(s.box, truth[s.index][j])) for s in tracks[track]}
         assert len(matched) == 1
     assert len(saved_frames(tmp_path)) == len(fitted)  # each object's fit saved on its own
+
+
+def test_tracks_too_short_to_be_objects_are_dropped_unless_none_is_longer() -> None:
+    def fitted(index: int, track: int) -> FrameStatus:
+        return FrameStatus(index, "fitted", (0, 0, 4, 4), "", track)
+
+    statuses = [fitted(k, 0) for k in range(4)] + [fitted(1, 1), FrameStatus(2, "merged", None, "", 1)]
+    kept = short_tracks_dropped(statuses, 3)
+    assert [s.status for s in kept] == ["fitted"] * 4 + ["dropped", "dropped"]
+    assert "fewer than video.min_track_frames" in kept[-1].note and kept[-1].track == 1
+    # A clip whose every track is short keeps its longest (the lower number on a tie).
+    short = [fitted(0, 0), fitted(1, 1), fitted(2, 1)]
+    assert [s.status for s in short_tracks_dropped(short, 3)] == ["dropped", "fitted", "fitted"]
+    assert short_tracks_dropped(short, 1) == short
