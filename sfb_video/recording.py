@@ -130,7 +130,7 @@ class Recorder(AtomicOutput):
         self.path = Path(path)
         self.camera = camera
         self._frame: int | None = None
-        self._masks_shown = False
+        self._masks_shown: set[int] = set()  # the tracks whose masks show
         self._tmp: Path | None = temporary_sibling(self.path, ".rrd")
         self._pipe: _Pipe | None = None
         if recording_id is None:
@@ -278,8 +278,9 @@ class Recorder(AtomicOutput):
         self._log(f"quality/track_{track:02d}/explained", rr.Scalars(float(explained)))
 
     @timed("recording")
-    def log_masks(self, index: int, source: str, box: Box, masks: torch.Tensor | None, n: int) -> None:
-        """Log which masks the fit of frame ``index`` used and, when it used sub-frame masks, show them.
+    def log_masks(self, index: int, source: str, box: Box, masks: torch.Tensor | None, n: int, track: int = 0) -> None:
+        """Log which masks the fit of track ``track``'s object in frame ``index`` used and, when it
+        used sub-frame masks, show them (an entity per track: two objects' masks side by side).
 
         Args:
             source: what the fit used, in words (``"diff"``, ``"defmo"``, with their order).
@@ -289,13 +290,14 @@ class Recorder(AtomicOutput):
             n: the sub-frames of this frame on the subframe timeline (as in :meth:`log_fit`);
                 each shows the mask at its mid-time.
         """
+        entity = f"world/camera/image/subframe_mask/track_{track:02d}"
         self._at(frame=index)
-        self._log("masks", rr.TextLog(source))
+        self._log(f"masks/track_{track:02d}", rr.TextLog(source))
         if masks is None:
-            if self._masks_shown:
+            if track in self._masks_shown:
                 self._at(subframe=index * n)
-                self._log("world/camera/image/subframe_mask", rr.Clear(recursive=False))
-                self._masks_shown = False
+                self._log(entity, rr.Clear(recursive=False))
+                self._masks_shown.discard(track)
             return
         check_shape(masks, (None, None, None), "masks")
         x, y, w, h = box
@@ -309,8 +311,8 @@ class Recorder(AtomicOutput):
             j = min(int((k + 0.5) * masks.shape[0] / n), masks.shape[0] - 1)
             ids[y : y + h, x : x + w] = (pasted[j] > 0.5).numpy().astype(np.uint8) * SUBFRAME_MASK_CLASS
             self._at(subframe=index * n + k)
-            self._log("world/camera/image/subframe_mask", rr.SegmentationImage(ids, opacity=0.5))
-        self._masks_shown = True
+            self._log(entity, rr.SegmentationImage(ids, opacity=0.5))
+        self._masks_shown.add(track)
 
     @timed("recording")
     def log_trajectory(self, points: np.ndarray, track: int = 0) -> None:

@@ -248,9 +248,12 @@ def test_masks_are_named_per_frame_and_subframe_masks_overlay_the_image(inputs: 
         for i in range(3):
             rec.log_frame(i, inputs.images[i], inputs.background)
             rec.log_masks(i, "defmo, order as given" if i == 0 else "diff", BOX, masks if i == 0 else None, N_SUB)
+            if i == 0:  # a second object in the same frame: its own entity, the first's kept
+                rec.log_masks(i, "diff", BOX, masks.flip(0), N_SUB, track=1)
     chunks = RrdReader(path).stream().to_chunks()
-    entity = "/world/camera/image/subframe_mask"
+    entity = "/world/camera/image/subframe_mask/track_00"
     assert times(chunks, entity, "SegmentationImage:buffer", "subframe") == [0, 1, 2]
+    assert times(chunks, entity.replace("00", "01"), "SegmentationImage:buffer", "subframe") == [0, 1, 2]
     assert not times(chunks, entity, "SegmentationImage:buffer", "frame")
     # Sub-frame k of 3 shows the mask at its mid-time: masks 0, 1, 1.
     for k, half in ((0, slice(x, x + w // 2)), (1, slice(x + w // 2, x + w)), (2, slice(x + w // 2, x + w))):
@@ -261,7 +264,7 @@ def test_masks_are_named_per_frame_and_subframe_masks_overlay_the_image(inputs: 
         assert np.array_equal(ids, expected), k
     # Frame 1 has none and clears them; frame 2 has nothing left to clear.
     assert times(chunks, entity, "Clear:is_recursive", "subframe") == [N_SUB]
-    said = rows(chunks, "/masks", "TextLog:text", "frame")
+    said = rows(chunks, "/masks/track_00", "TextLog:text", "frame")
     assert said == [(0, ["defmo, order as given"]), (1, ["diff"]), (2, ["diff"])]
     with Recorder(tmp_path / "bad.rrd", CAMERA, "bad") as rec, pytest.raises(SfbError, match="not inside"):
         rec.log_masks(0, "defmo", (60, 40, 10, 10), masks, N_SUB)

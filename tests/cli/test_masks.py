@@ -50,7 +50,7 @@ def test_process_with_defmo_weights_uses_and_reports_them_per_frame(
         assert frame["masks"] == "defmo" and frame["masks_order"] in ("as given", "reversed")
         assert "silhouette" in frame["losses"] and "difference" not in frame["losses"]
     entities = {c.entity_path for c in RrdReader(out / "recording.rrd").stream().to_chunks()}
-    assert {"/world/camera/image/subframe_mask", "/masks"} <= entities
+    assert {"/world/camera/image/subframe_mask/track_00", "/masks/track_00"} <= entities
 
 
 def test_process_without_weights_says_once_that_it_falls_back(
@@ -64,7 +64,7 @@ def test_process_without_weights_says_once_that_it_falls_back(
     assert summary["masks"]["source"] == "diff"
     assert {f["masks"] for f in summary["frames"] if f["status"] == "fitted"} == {"diff"}
     entities = {c.entity_path for c in RrdReader(out / "recording.rrd").stream().to_chunks()}
-    assert "/world/camera/image/subframe_mask" not in entities
+    assert "/world/camera/image/subframe_mask/track_00" not in entities
 
 
 def test_a_run_does_not_resume_with_other_masks(
