@@ -1,0 +1,152 @@
+"""Several fast movers in one clip, end to end (fast preset): identities kept through a crossing,
+a track, a GLB and a summary section per object, one track when one is asked for, and a resumed
+run equal to an uninterrupted one."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import sfb_video.stages.track
+from benchmarks import multi_object
+from sfb_video.config import Config, load_config
+from sfb_video.evaluation.objects import box_iou, cover_objects, spurious_tracks
+from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.stages.background import running_median
+from sfb_video.stages.process import ProcessOptions, process_clip
+from sfb_video.stages.track import track_and_fit
+from sfb_video.stages.types import Frame
+from sfb_video.synth.several import SeveralClip, several
+from sfb_video.video import VideoWriter
+
+CPU = torch.device("cpu")
+
+
+def _config(max_objects: int = 0) -> Config:
+    told = [f"video.exposure_fraction={multi_object.BASE.exposure_fraction}", f"video.max_objects={max_objects}"]
+    return load_config("fast", told)
+
+
+def _clip(scenario: str) -> tuple[SeveralClip, int]:
+    """The benchmark's clip of ``scenario`` and how many of its movers are objects to find."""
+    objects, distractors, background = multi_object.SCENARIOS[scenario]()
+    camera = PinholeCamera.from_fov(background.shape[1], background.shape[0], multi_object.BASE.fov_y_deg)
+    return several(background, camera, objects + distractors, multi_object.BASE.noise_sigma, 0), len(objects)
+
+
+def _truths(clip: SeveralClip, count: int) -> list[dict[int, tuple[int, int, int, int]]]:
+    return [{k: b for k, b in enumerate(layer.boxes) if b is not None} for layer in clip.layers[:count]]
+
+
+def test_two_crossing_movers_keep_their_identities_through_the_crossing(tmp_path: Path) -> None:
+    clip, count = _clip("two crossing")
+    truths = _truths(clip, count)
+    middle = clip.frames.shape[0] // 2
+    assert box_iou(truths[0][middle], truths[1][middle]) > 0.5  # they do cross
+    frames = [Frame(k, torch.from_numpy(np.ascontiguousarray(f.transpose(2, 0, 1)))) for k, f in enumerate(clip.frames)]
+    statuses = track_and_fit(running_median(iter(frames), 5), tmp_path, clip.camera, _config(), CPU)
+    tracks: dict[int, dict[int, tuple[int, int, int, int]]] = {}
+    for s in statuses:
+        if s.status == "fitted":
+            tracks.setdefault(s.track, {})[s.index] = s.box
+    coverage = cover_objects(truths, tracks)
+    # Each object has its own track, found in every frame but at most the crossing's; a swap at
+    # the crossing would leave one of them its track in half the frames.
+    assert len({c.track for c in coverage}) == 2, tracks
+    for c in coverage:
+        assert c.recall >= 6 / 8 and c.precision >= 6 / 8, (c, tracks)
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    clip: SeveralClip
+    count: int
+    video: Path
+    out: Path
+    summary: dict
+
+
+def _write(clip: SeveralClip, path: Path) -> Path:
+    with VideoWriter(path, 30.0, clip.frames.shape[2], clip.frames.shape[1]) as writer:
+        for frame in clip.frames:
+            writer.write(frame)
+    return path
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
+    root = tmp_path_factory.mktemp("several")
+    clip, count = _clip("three side by side")
+    video = _write(clip, root / "clip.mp4")
+    summary = process_clip(ProcessOptions(video=video, out=root / "run"), _config(), CPU, quiet=True)
+    return Run(clip, count, video, root / "run", summary)
+
+
+def _tracks(summary: dict) -> dict[int, dict[int, tuple[int, int, int, int]]]:
+    tracks: dict[int, dict[int, tuple[int, int, int, int]]] = {}
+    for row in summary["frames"]:
+        if row["status"] == "fitted":
+            tracks.setdefault(row["track"], {})[row["index"]] = tuple(row["box"])
+    return tracks
+
+
+def test_three_movers_give_three_tracks_three_glbs_and_a_section_each(run: Run) -> None:
+    tracks = _tracks(run.summary)
+    truths = _truths(run.clip, run.count)
+    coverage = cover_objects(truths, tracks)
+    covering = [c.track for c in coverage]
+    assert None not in covering and len(set(covering)) == 3, tracks
+    for own, c in enumerate(coverage):
+        # Measured 0.62 to 1.00: the box's blob is found in part in some frames (box IoU < 0.5).
+        assert c.recall >= 0.5, (c, tracks)
+        for index, box in tracks[c.track].items():  # never on another object
+            ious = [box_iou(box, truth[index]) for truth in truths]
+            assert ious[own] == max(ious), (c.track, index, ious)
+    assert not spurious_tracks(coverage, tracks), tracks
+    for track in covering:
+        assert (run.out / "meshes" / f"track_{track:02d}.glb").is_file()
+    summarised = {t["track"]: t for t in run.summary["tracks"]}
+    assert set(summarised) == set(tracks)
+    for track in covering:
+        assert summarised[track]["frames"] == sorted(tracks[track]) and summarised[track]["prototype"]
+    # The per-frame view says which tracks each frame holds.
+    header, *rows = (run.out / "trajectory.csv").read_text().splitlines()
+    assert header.split(",")[0] == "track"
+    assert {int(r.split(",")[0]) for r in rows} == set(tracks)
+
+
+def test_one_track_when_one_is_asked_for(run: Run, tmp_path: Path) -> None:
+    summary = process_clip(ProcessOptions(video=run.video, out=tmp_path / "one"), _config(1), CPU, quiet=True)
+    assert set(_tracks(summary)) == {0} and len(summary["tracks"]) == 1
+    assert any("not tracked (video.max_objects)" in row["note"] for row in summary["frames"])
+
+
+def test_a_resumed_run_of_several_tracks_equals_an_uninterrupted_one(
+    run: Run, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "run"
+    real_fit = sfb_video.stages.track.fit_detection
+    fitted: list[int] = []
+
+    def stop_in_the_second_frame(*args: object, **kwargs: object) -> object:
+        if len(fitted) == 4:  # frame 0's objects and one of frame 1's
+            raise KeyboardInterrupt
+        fitted.append(0)
+        return real_fit(*args, **kwargs)
+
+    options = ProcessOptions(video=run.video, out=out)
+    with monkeypatch.context() as patch:
+        patch.setattr(sfb_video.stages.track, "fit_detection", stop_in_the_second_frame)
+        with pytest.raises(KeyboardInterrupt):
+            process_clip(options, _config(), CPU, quiet=True)
+    summary = process_clip(options, _config(), CPU, quiet=True)
+    assert (out / "trajectory.csv").read_text() == (run.out / "trajectory.csv").read_text()
+    strip = ("seconds", "started", "finished", "elapsed")
+    same = [{k: v for k, v in row.items() if k not in strip} for row in summary["frames"]]
+    want = [{k: v for k, v in row.items() if k not in strip} for row in run.summary["frames"]]
+    assert json.dumps(same, sort_keys=True) == json.dumps(want, sort_keys=True)
