@@ -1,10 +1,11 @@
 """Real footage, looked at: each clip's input frames beside the super-resolved sub-frames.
 
-    python -m benchmarks.real_montage [--clip falling_pen:0:8 ...] [--config default] [--out DIR]
+    python -m benchmarks.real_montage [--clip falling_pen:0:8 ...] [--config default] [--set KEY=VALUE ...] [--out DIR]
 
 Processes each clip's frame range (``name:start:stop`` of ``../shared/data/clips``) as
 ``process`` does, then writes ``DIR/<name>.png``: per fitted frame, its input around the
-detection and the ``--tsr`` sub-frames of ``tsr.mp4`` over the same box, and prints each
+detection and the ``--tsr`` sub-frames of ``tsr.mp4`` over the same box (a row per object of a
+frame, with ``--set video.max_objects=0`` for several), and prints each
 window's shape (the joint fit's prototype and the shape trial's residuals). There is no truth:
 the picture is the check (a pen long and thin, a ball round, no streak left behind).
 
@@ -70,13 +71,15 @@ def _in_frame(box: tuple[int, int, int, int], to_reference: np.ndarray | None) -
     return max(0, round(u - w / 2)), max(0, round(v - h / 2)), w, h
 
 
-def montage(name: str, start: int, stop: int, config_name: str, out: Path, tsr: int, shake: int | None) -> None:
+def montage(
+    name: str, start: int, stop: int, config_name: str, out: Path, tsr: int, shake: int | None, overrides: list[str]
+) -> None:
     clip = CLIPS / f"{name}.avi" if (CLIPS / f"{name}.avi").is_file() else CLIPS / f"{name}.mp4"
     if shake is not None:
         out.mkdir(parents=True, exist_ok=True)
         clip, name = _shaken(clip, shake, out), f"{name}_shaken"
     run = out / name
-    config = load_config(config_name, [f"video.tsr={tsr}"])
+    config = load_config(config_name, [f"video.tsr={tsr}", *overrides])
     options = ProcessOptions(video=clip, out=run, frames=f"{start}:{stop}", overwrite=True, masks="diff")
     process_clip(options, config, torch.device("cpu"), quiet=True)
     summary = json.loads((run / "summary.json").read_text())
@@ -110,13 +113,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--clip", action="append", help="name:start:stop (repeatable)")
     parser.add_argument("--config", default="default")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--tsr", type=int, default=4)
     parser.add_argument("--out", type=Path, default=Path("runs/real-montage"))
     parser.add_argument("--shake", type=int, metavar="SEED", help="shake each clip first (a handheld camera)")
     args = parser.parse_args()
     for spec in args.clip or DEFAULT:
         name, start, stop = spec.split(":")
-        montage(name, int(start), int(stop), args.config, args.out, args.tsr, args.shake)
+        montage(name, int(start), int(stop), args.config, args.out, args.tsr, args.shake, args.set)
         print(f"wrote {args.out / name}{'' if args.shake is None else '_shaken'}.png")
 
 
