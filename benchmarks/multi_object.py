@@ -35,6 +35,7 @@ from benchmarks.detect import BASE
 from sfb_video.config import Config, load_config
 from sfb_video.evaluation.objects import Coverage, cover_objects, spurious_tracks
 from sfb_video.evaluation.scoring import render_estimate, score_estimate
+from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.stages.process import ProcessOptions, process_clip
 from sfb_video.stages.windows import final_results
 from sfb_video.synth import generate_clip
@@ -42,6 +43,8 @@ from sfb_video.synth.several import Layer, SeveralClip, cut, mirrored, several, 
 from sfb_video.video import VideoWriter
 
 CPU = torch.device("cpu")
+SEED = 0
+"""The noise seed of every scenario's clip, with all its objects or one alone."""
 Box = tuple[int, int, int, int]
 
 
@@ -122,20 +125,37 @@ class ObjectRow:
     alone_psnr: float
 
 
-def run_clip(clip: SeveralClip, folder: Path, config: Config) -> tuple[dict[int, dict[int, Box]], dict]:
-    """Write ``clip`` as a video and run the pipeline on it: per track, frame -> its box; and the
-    final fits by (frame, track)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    video = folder / "clip.mp4"
-    with VideoWriter(video, 30.0, clip.frames.shape[2], clip.frames.shape[1]) as writer:
+def scenario_clip(name: str) -> tuple[SeveralClip, int]:
+    """The clip of scenario ``name`` (its movers not to find last) and how many objects to find."""
+    objects, distractors, background = SCENARIOS[name]()
+    camera = PinholeCamera.from_fov(BASE.width, BASE.height, BASE.fov_y_deg)  # every scenario's, as generated
+    return several(background, camera, objects + distractors, BASE.noise_sigma, SEED), len(objects)
+
+
+def write_video(clip: SeveralClip, path: Path) -> Path:
+    """``clip``'s frames as an H.264 video at ``path``."""
+    with VideoWriter(path, 30.0, clip.frames.shape[2], clip.frames.shape[1]) as writer:
         for frame in clip.frames:
             writer.write(frame)
-    summary = process_clip(ProcessOptions(video=video, out=folder / "run"), config, CPU, quiet=True)
+    return path
+
+
+def fitted_tracks(summary: dict) -> dict[int, dict[int, Box]]:
+    """Per track of a run's ``summary.json``, frame -> the box of its fitted object."""
     tracks: dict[int, dict[int, Box]] = {}
     for row in summary["frames"]:
         if row["status"] == "fitted":
             tracks.setdefault(row["track"], {})[row["index"]] = tuple(row["box"])
-    return tracks, final_results(folder / "run")
+    return tracks
+
+
+def run_clip(clip: SeveralClip, folder: Path, config: Config) -> tuple[dict[int, dict[int, Box]], dict]:
+    """Write ``clip`` as a video and run the pipeline on it: per track, frame -> its box; and the
+    final fits by (frame, track)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    video = write_video(clip, folder / "clip.mp4")
+    summary = process_clip(ProcessOptions(video=video, out=folder / "run"), config, CPU, quiet=True)
+    return fitted_tracks(summary), final_results(folder / "run")
 
 
 def fit_scores(clip: SeveralClip, layer: int, coverage: Coverage, fits: dict, config: Config) -> tuple[float, float]:
@@ -170,18 +190,15 @@ def _truth(layer: Layer) -> dict[int, Box]:
 def score_scenario(name: str, config: Config, root: Path) -> tuple[list[ObjectRow], dict[int, int], float]:
     """Rows for every object of scenario ``name``, the spurious tracks of the clip of all of
     them, and its seconds."""
-    objects, distractors, background = SCENARIOS[name]()
-    camera = generate_clip(BASE).camera  # every scenario's objects share BASE's camera
-    seed = 0
-    clip = several(background, camera, objects + distractors, BASE.noise_sigma, seed)
+    clip, count = scenario_clip(name)
     start = time.perf_counter()
     tracks, fits = run_clip(clip, root / "all", config)
     seconds = time.perf_counter() - start
-    truths = [_truth(layer) for layer in objects]
+    truths = [_truth(layer) for layer in clip.layers[:count]]
     coverage = cover_objects(truths, tracks)
     rows = []
-    for k, obj in enumerate(objects):
-        alone = several(background, camera, [obj], BASE.noise_sigma, seed)
+    for k, obj in enumerate(clip.layers[:count]):
+        alone = several(clip.background, clip.camera, [obj], BASE.noise_sigma, SEED)
         alone_tracks, alone_fits = run_clip(alone, root / f"alone_{k}", config)
         [alone_coverage] = cover_objects([truths[k]], alone_tracks)
         tiou, psnr = fit_scores(clip, k, coverage[k], fits, config)

@@ -50,6 +50,14 @@ class Crop:
     streak: torch.Tensor
 
 
+def mask_box(mask: np.ndarray) -> Box | None:
+    """(x, y, w, h) of the True pixels of an (H, W) bool mask, None if there are none."""
+    rows, cols = np.nonzero(mask.any(1))[0], np.nonzero(mask.any(0))[0]
+    if rows.size == 0:
+        return None
+    return int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1)
+
+
 def largest_blob(mask: torch.Tensor) -> tuple[torch.Tensor, Box | None]:
     """The largest 8-connected blob of a boolean (H, W) mask, and its box (None if empty)."""
     count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.cpu().numpy().astype(np.uint8), connectivity=8)

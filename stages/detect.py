@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from sfb_video.config import DetectConfig
+from sfb_video.crop import mask_box
 from sfb_video.imageio import as_float
 from sfb_video.stages.types import Detection, Prediction
 from sfb_video.timing import timed
@@ -301,8 +302,8 @@ class FrameBlobs:
         if part is None:
             x, y, w, h = (int(v) for v in self.stats[label, :4])
             return Detection(index, (x, y, w, h), torch.from_numpy(self.labels == label), others, self.colour(label))
-        rows, cols = np.nonzero(part.any(1))[0], np.nonzero(part.any(0))[0]
-        box = (int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1))
+        box = mask_box(part)
+        assert box is not None  # split() gives no empty part
         colour = None if self.pixels is None else blob_colour(*self.pixels, part)
         return Detection(index, box, torch.from_numpy(part), others, colour)
 

@@ -282,9 +282,9 @@ class Tracker:
         self.earlier = self.earlier if self.length >= 2 else None
         if self.previous is None:
             return []
-        options = [self.previous, self.previous.reversed()] if self.length == 1 else [self.previous]
         if self.coasting and self.earlier is not None:
             return [(self._glided(index), self.previous)]
+        options = [self.previous, self.previous.reversed()] if self.length == 1 else [self.previous]
         e = self.config.video.exposure_fraction
         return [
             (dataclasses.replace(predict(continued(o, self.earlier, index, e), self.camera), colour=self.colour), o)

@@ -16,13 +16,11 @@ import sfb_video.stages.track
 from benchmarks import multi_object
 from sfb_video.config import Config, load_config
 from sfb_video.evaluation.objects import box_iou, cover_objects, spurious_tracks
-from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.stages.background import running_median
 from sfb_video.stages.process import ProcessOptions, process_clip
 from sfb_video.stages.track import track_and_fit
 from sfb_video.stages.types import Frame
-from sfb_video.synth.several import SeveralClip, several
-from sfb_video.video import VideoWriter
+from sfb_video.synth.several import SeveralClip
 
 CPU = torch.device("cpu")
 
@@ -32,19 +30,12 @@ def _config(max_objects: int = 0) -> Config:
     return load_config("fast", told)
 
 
-def _clip(scenario: str) -> tuple[SeveralClip, int]:
-    """The benchmark's clip of ``scenario`` and how many of its movers are objects to find."""
-    objects, distractors, background = multi_object.SCENARIOS[scenario]()
-    camera = PinholeCamera.from_fov(background.shape[1], background.shape[0], multi_object.BASE.fov_y_deg)
-    return several(background, camera, objects + distractors, multi_object.BASE.noise_sigma, 0), len(objects)
-
-
 def _truths(clip: SeveralClip, count: int) -> list[dict[int, tuple[int, int, int, int]]]:
     return [{k: b for k, b in enumerate(layer.boxes) if b is not None} for layer in clip.layers[:count]]
 
 
 def test_two_crossing_movers_keep_their_identities_through_the_crossing(tmp_path: Path) -> None:
-    clip, count = _clip("two crossing")
+    clip, count = multi_object.scenario_clip("two crossing")
     truths = _truths(clip, count)
     middle = clip.frames.shape[0] // 2
     assert box_iou(truths[0][middle], truths[1][middle]) > 0.5  # they do cross
@@ -71,32 +62,17 @@ class Run:
     summary: dict
 
 
-def _write(clip: SeveralClip, path: Path) -> Path:
-    with VideoWriter(path, 30.0, clip.frames.shape[2], clip.frames.shape[1]) as writer:
-        for frame in clip.frames:
-            writer.write(frame)
-    return path
-
-
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
     root = tmp_path_factory.mktemp("several")
-    clip, count = _clip("three side by side")
-    video = _write(clip, root / "clip.mp4")
+    clip, count = multi_object.scenario_clip("three side by side")
+    video = multi_object.write_video(clip, root / "clip.mp4")
     summary = process_clip(ProcessOptions(video=video, out=root / "run"), _config(), CPU, quiet=True)
     return Run(clip, count, video, root / "run", summary)
 
 
-def _tracks(summary: dict) -> dict[int, dict[int, tuple[int, int, int, int]]]:
-    tracks: dict[int, dict[int, tuple[int, int, int, int]]] = {}
-    for row in summary["frames"]:
-        if row["status"] == "fitted":
-            tracks.setdefault(row["track"], {})[row["index"]] = tuple(row["box"])
-    return tracks
-
-
 def test_three_movers_give_three_tracks_three_glbs_and_a_section_each(run: Run) -> None:
-    tracks = _tracks(run.summary)
+    tracks = multi_object.fitted_tracks(run.summary)
     truths = _truths(run.clip, run.count)
     coverage = cover_objects(truths, tracks)
     covering = [c.track for c in coverage]
@@ -122,7 +98,7 @@ def test_three_movers_give_three_tracks_three_glbs_and_a_section_each(run: Run) 
 
 def test_one_track_when_one_is_asked_for(run: Run, tmp_path: Path) -> None:
     summary = process_clip(ProcessOptions(video=run.video, out=tmp_path / "one"), _config(1), CPU, quiet=True)
-    assert set(_tracks(summary)) == {0} and len(summary["tracks"]) == 1
+    assert set(multi_object.fitted_tracks(summary)) == {0} and len(summary["tracks"]) == 1
     assert any("not tracked (video.max_objects)" in row["note"] for row in summary["frames"])
 
 

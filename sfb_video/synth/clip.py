@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from sfb_video.crop import mask_box
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.imageio import to_uint8
 from sfb_video.synth.backgrounds import make_background
@@ -251,7 +252,7 @@ def render_frame(scene: SyntheticScene, index: int) -> tuple[np.ndarray, FrameTr
     frame = to_uint8(sub.mean(0) + noise)
     bbox = centres = radius = None
     if present:
-        bbox = _tight_box(coverage.max(0) > 0)
+        bbox = mask_box(coverage.max(0) > 0)
         mid = scene.trajectory.positions(scene.trajectory.exposure_times(index, (np.arange(n) + 0.5) / n))
         centres = _project(cam, mid)
         radius = math.sqrt(float(coverage.sum((1, 2)).mean()) / math.pi)
@@ -266,14 +267,6 @@ def render_frame(scene: SyntheticScene, index: int) -> tuple[np.ndarray, FrameTr
         radius_px=radius,
     )
     return frame, truth
-
-
-def _tight_box(touched: np.ndarray) -> tuple[int, int, int, int] | None:
-    """(x, y, w, h) of the True pixels of an (H, W) mask, None if there are none."""
-    rows, cols = np.nonzero(touched.any(1))[0], np.nonzero(touched.any(0))[0]
-    if rows.size == 0:
-        return None
-    return int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1)
 
 
 def generate_clip(spec: ClipSpec) -> SyntheticClip:

@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from sfb_video.crop import mask_box
 from sfb_video.synth import ClipSpec, generate_clip
 from sfb_video.synth.several import cut, mirrored, several, shifted, take_layer
 
@@ -22,11 +23,6 @@ SPEC = ClipSpec(
     speed_range=(1.0, 1.2),
     seed=3,
 )
-
-
-def _cover_box(cover: np.ndarray) -> tuple[int, int, int, int]:
-    rows, cols = np.nonzero((cover > 0).any(0).any(1))[0], np.nonzero((cover > 0).any(0).any(0))[0]
-    return int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1)
 
 
 def test_one_layer_composited_alone_is_its_own_clip() -> None:
@@ -56,7 +52,7 @@ def test_mirrored_shifted_and_cut_layers_keep_their_truth_with_their_pixels() ->
     layer = take_layer(generate_clip(SPEC))
     moved = shifted(mirrored(layer), -3, 2)
     for k in range(SPEC.num_frames):
-        assert _cover_box(moved.cover[k]) == moved.boxes[k]
+        assert mask_box((moved.cover[k] > 0).any(0)) == moved.boxes[k]
         x, y, w, h = layer.boxes[k]
         assert moved.boxes[k] == (SPEC.width - x - w - 3, y + 2, w, h)
         # The centre moves with the pixels: coverage's centroid and the true centre agree.
