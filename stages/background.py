@@ -61,13 +61,25 @@ def _cover(frame: Frame) -> torch.Tensor | None:
     return None if frame.registered is None else frame.registered.covered
 
 
-def _paired(frame: Frame, background: torch.Tensor) -> FrameWithBackground:
+def _seen(frames: list[Frame]) -> torch.Tensor | None:
+    """(H, W) bool the reference's pixels at least one of ``frames`` saw (None: all of them)."""
+    covers = [_cover(f) for f in frames]
+    if not covers or any(c is None for c in covers):
+        return None
+    return torch.stack(covers).any(dim=0)
+
+
+def _paired(frame: Frame, background: torch.Tensor, seen: torch.Tensor | None = None) -> FrameWithBackground:
     """``frame`` with its ``background``; a registered frame's pixels outside what it covers of
-    its reference (a repeated border) are the background's, so that nothing shows there."""
+    its reference (a repeated border) are the background's, and the background's pixels that
+    no frame behind it ``seen`` are the frame's (a pan's newly seen strip), so that nothing
+    shows where nothing is known."""
     pixels = frame.image
     if frame.registered is not None:
         if pixels.dtype != background.dtype:  # an 8-bit frame over a float background image
             pixels, background = as_float(pixels), as_float(background)
+        if seen is not None:
+            background = torch.where(seen, background, pixels)
         pixels = torch.where(frame.registered.covered, pixels, background)
     return FrameWithBackground(frame.index, pixels, background, frame.registered)
 
@@ -96,11 +108,13 @@ def _running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithB
     for frame in head[:window]:
         others = [f for f in seen if f is not frame]
         # A reference seen by one frame only has nothing to compare with: no difference.
-        yield _paired(frame, _median([f.image for f in others], [_cover(f) for f in others]) if others else frame.image)
+        background = _median([f.image for f in others], [_cover(f) for f in others]) if others else frame.image
+        yield _paired(frame, background, _seen(others))
     previous = deque((f for f in head[:window] if usable(f)), maxlen=window)
     for frame in chain(head[window:], stream):
         known = list(previous)
-        yield _paired(frame, _median([f.image for f in known], [_cover(f) for f in known]) if known else frame.image)
+        background = _median([f.image for f in known], [_cover(f) for f in known]) if known else frame.image
+        yield _paired(frame, background, _seen(known))
         if usable(frame):
             previous.append(frame)
 

@@ -152,6 +152,22 @@ def test_a_pan_with_a_dark_frame_streams_a_background_for_every_frame() -> None:
     assert float((paired[6].pixels.float() - paired[6].background_pixels.float()).abs().max()) == 0.0
 
 
+def test_a_pans_newly_seen_strip_shows_no_difference() -> None:
+    # The pan moves right: a reference's left strip is seen by no later frame, so its
+    # background there is unknown and must not be a repeated border that reads as a streak.
+    from sfb_video.config import CameraConfig
+    from sfb_video.registration import register_frames
+    from sfb_video.stages.background import running_median
+    from sfb_video.stages.register import registered
+
+    frames = _pan_frames(8)
+    motion = register_frames(((f.index, f.image) for f in frames), CameraConfig())
+    paired = {f.index: f for f in running_median(registered(frames, motion), 5)}
+    first = paired[0]
+    strip = (first.pixels.float() - first.background_pixels.float()).abs()[:, :, :25]
+    assert float(strip.max()) == 0.0
+
+
 def test_a_registered_8_bit_clip_over_a_float_background_image_stays_in_range() -> None:
     from sfb_video.config import CameraConfig
     from sfb_video.imageio import as_float
@@ -178,3 +194,36 @@ def test_stabilised_export_shows_the_reference_view(runs: Runs, tmp_path: Path) 
     assert main(["export", str(folder), "--stabilised", "--quiet"]) == 0
     sub, shaken, still = _away_from_the_object(runs, folder / "tsr.mp4")
     assert np.abs(sub - still).mean() < 0.5 * np.abs(sub - shaken).mean()
+
+
+def test_a_pan_past_the_first_view_splits_its_tracks_at_the_new_reference(tmp_path: Path) -> None:
+    # The demo clip rendered 640 wide and a 320-wide view panned across it 20 px a frame: the
+    # view leaves the first frame's behind (overlap under 0.6) by the seventh frame.
+    from sfb_video.video import VideoWriter
+
+    config = demo_config(load_config("fast", ["joint.enabled=false", "video.min_track_frames=1"]))
+    config = dataclasses.replace(config, demo=dataclasses.replace(config.demo, width=640, frames=12))
+    clip = demo_clip(config)
+    video = tmp_path / "pan.mp4"
+    with VideoWriter(video, 30.0, 320, clip.spec.height) as writer:
+        for k, frame in enumerate(clip.frames):
+            writer.write(np.ascontiguousarray(frame[:, 20 * k : 20 * k + 320]))
+    out = tmp_path / "run"
+    process_clip(ProcessOptions(video=video, out=out), config, CPU, quiet=True)
+    motion = json.loads((out / "camera_motion.json").read_text())
+    segment = {f["index"]: f["segment"] for f in motion["frames"]}
+    assert json.loads((out / "summary.json").read_text())["camera"]["references"] == 2
+    with (out / "trajectory.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    # Each row's 3D position is in the camera of the reference its frame is registered to, and
+    # no track carries on across a new reference (its 3D path would jump between cameras).
+    assert all(int(r["reference"]) == segment[int(r["frame"])] for r in rows)
+    assert {r["reference"] for r in rows} == {"0", "1"}
+    for track in {r["track"] for r in rows}:
+        assert len({r["reference"] for r in rows if r["track"] == track}) == 1
+    # The first reference's frames are where the object is, in each frame's own pixels.
+    for r in rows:
+        k, j = int(r["frame"]), int(r["subframe"])
+        if r["in_exposure"] == "1" and segment[k] == 0 and k < 5:
+            x, y = clip.truth[k].centres[j]
+            assert abs(float(r["u_px"]) - (x - 20 * k)) < 8 and abs(float(r["v_px"]) - y) < 8
