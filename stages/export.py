@@ -543,7 +543,8 @@ def export_frames(
                 points = trajectory.setdefault(result.track, [])
                 points.append(np.array([[r["x"], r["y"], r["z"]] for r in rows], dtype=np.float32))
                 recorder.log_trajectory(np.concatenate(points), result.track)
-                done.rows += [{"track": result.track, **r} for r in rows]
+                reference = 0 if frame.registered is None else frame.registered.segment
+                done.rows += [{"track": result.track, "reference": reference, **r} for r in rows]
                 done.fits[result.key] = record
                 if result.losses["image"] < best_loss:
                     best_loss, done.best = result.losses["image"], result.key
