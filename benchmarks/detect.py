@@ -119,12 +119,15 @@ def score_frames(
     moving camera and registered to the first before detection."""
     motion = None
     if moves is not None:
-        size = (pixels.shape[2], pixels.shape[1])
         pixels = shake_frames(pixels, moves)
-        truth = [[_moved_box(b, moves[0], size) for b in boxes] for boxes in truth]
     frames = [Frame(k, torch.from_numpy(np.ascontiguousarray(f.transpose(2, 0, 1)))) for k, f in enumerate(pixels)]
     if moves is not None:
         motion = register_frames(((f.index, f.image) for f in frames), config.camera)
+        canvas = motion.canvas
+        assert canvas is not None
+        # The truth as the first frame sees it, drawn on its canvas.
+        move, size = canvas.shift @ moves[0], (canvas.width, canvas.height)
+        truth = [[_moved_box(b, move, size) for b in boxes] for boxes in truth]
     stream = running_median(registered(frames, motion), config.video.background_window)
     present = found = detections = 0
     ious = []

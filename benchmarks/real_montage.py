@@ -61,13 +61,13 @@ def _shaken(clip: Path, seed: int, out: Path) -> Path:
     return path
 
 
-def _in_frame(box: tuple[int, int, int, int], to_reference: np.ndarray | None) -> tuple[int, int, int, int]:
-    """A box in the reference's coordinates taken into the frame's own (same size)."""
-    if to_reference is None:
+def _in_frame(box: tuple[int, int, int, int], to_canvas: np.ndarray | None) -> tuple[int, int, int, int]:
+    """A box on the canvas taken into the frame's own (same size)."""
+    if to_canvas is None:
         return box
     x, y, w, h = box
     centre = np.array([[[x + w / 2, y + h / 2]]])
-    u, v = cv2.perspectiveTransform(centre, np.linalg.inv(to_reference))[0, 0]
+    u, v = cv2.perspectiveTransform(centre, np.linalg.inv(to_canvas))[0, 0]
     return max(0, round(u - w / 2)), max(0, round(v - h / 2)), w, h
 
 
@@ -90,7 +90,7 @@ def montage(
         if frame.get("status") != "fitted" or frame.get("box") is None:
             continue
         registration = None if motion is None else motion.of(frame["index"])
-        x, y, w, h = _in_frame(tuple(frame["box"]), None if registration is None else registration.to_reference)
+        x, y, w, h = _in_frame(tuple(frame["box"]), None if registration is None else motion.to_canvas(registration))
         pad = max(w, h) // 3
         box = (max(0, x - pad), max(0, y - pad), w + 2 * pad, h + 2 * pad)
         k = frame["index"] - start

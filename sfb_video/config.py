@@ -86,6 +86,10 @@ class CameraConfig(_Checked):
     min_overlap: float = bounded(0.6, gt=0, le=1)
     """A frame that covers less than this share of its reference frame starts a new reference
     (a pan longer than the frame); tracks end there."""
+    max_margin: float = bounded(0.5, ge=0, le=1)
+    """Registered frames are drawn on the reference's view grown by how far the frames reach
+    past it (:class:`sfb_video.registration.Canvas`), by at most this share of the frame's side
+    on each side."""
     min_inliers: int = bounded(15, ge=4)
     """A frame registers when at least this many matched features agree on its motion."""
     features: int = bounded(1500, ge=50)

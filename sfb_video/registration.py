@@ -11,6 +11,12 @@ has moved so far that it overlaps its reference less than ``camera.min_overlap``
 reference of a new *segment* (a pan longer than the frame). A frame that matches neither (no
 texture, a cut, a flash) is not registered, and the pipeline does not fit it.
 
+The registered frames are drawn on a *canvas*: the reference's view grown by how far the clip's
+frames reach past it (a few pixels for a shake; for a pan up to ``camera.max_margin`` of the
+frame's side), so that an object a frame sees beyond its reference's view is still there to be
+found and fitted. The clip's one pinhole camera is the reference's, its principal point moved
+by the canvas's margin (:meth:`Canvas.camera`).
+
 Only the transforms are kept (3 x 3 each), so memory does not grow with the clip. On a still
 camera every transform is within ``camera.still_px`` of the identity and, with
 ``camera.motion: auto``, no frame is warped at all: a still clip's output is unchanged.
@@ -18,7 +24,9 @@ camera every transform is within ``camera.still_px`` of the identity and, with
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -31,6 +39,7 @@ import torch
 from sfb_video.atomic import write_json
 from sfb_video.config import CameraConfig
 from sfb_video.errors import SfbError
+from sfb_video.geometry.camera import PinholeCamera
 
 WORK_SIDE = 640
 """Features are found on the frame scaled to at most this long a side: a 4K frame's features
@@ -47,12 +56,39 @@ class Registration:
             reference's, or None where registration failed.
         segment: the reference it is registered to (0, 1, ... as the references are taken).
         note: why registration failed, or how it was made (``chained``), else empty.
+        to_previous: (3, 3) for a reference the camera panned on to, its pixels to the
+            previous reference's (None for any other frame, and after a cut).
     """
 
     index: int
     to_reference: np.ndarray | None
     segment: int = 0
     note: str = ""
+    to_previous: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Canvas:
+    """The image registered frames are drawn on: a reference's view with a margin around it.
+
+    Attributes:
+        left, top: where the reference's pixel (0, 0) lies on the canvas.
+        width, height: the canvas's size in pixels.
+    """
+
+    left: int
+    top: int
+    width: int
+    height: int
+
+    @property
+    def shift(self) -> np.ndarray:
+        """(3, 3) reference pixels -> canvas pixels."""
+        return np.array([[1.0, 0.0, self.left], [0.0, 1.0, self.top], [0.0, 0.0, 1.0]])
+
+    def camera(self, camera: PinholeCamera) -> PinholeCamera:
+        """The reference's ``camera`` rendering the whole canvas."""
+        return PinholeCamera(camera.fx, camera.fy, camera.cx + self.left, camera.cy + self.top, self.width, self.height)
 
 
 @dataclass
@@ -63,13 +99,38 @@ class CameraMotion:
         frames: index -> :class:`Registration`.
         moving: whether any frame's transform moves a corner by more than ``still_px``; a still
             clip's frames are used as they are.
+        canvas: what the registered frames are drawn on (None: the frames' own size).
     """
 
     frames: dict[int, Registration] = field(default_factory=dict)
     moving: bool = False
+    canvas: Canvas | None = None
+    _pans: dict[int, np.ndarray] | None = field(default=None, init=False, repr=False, compare=False)
 
     def of(self, index: int) -> Registration | None:
         return self.frames.get(index)
+
+    def to_canvas(self, registration: Registration) -> np.ndarray | None:
+        """(3, 3) a registered frame's pixels -> the canvas's, or None where it failed."""
+        if registration.to_reference is None or self.canvas is None:
+            return registration.to_reference
+        return self.canvas.shift @ registration.to_reference
+
+    def to_next_canvas(self, registration: Registration) -> np.ndarray | None:
+        """(3, 3) a registered frame's pixels -> the next reference's canvas, where the camera
+        panned on to a next reference; else None (the last reference, a cut, a failed frame)."""
+        following = self._panned_to().get(registration.segment + 1)
+        if registration.to_reference is None or following is None:
+            return None
+        to_next = np.linalg.inv(following) @ registration.to_reference
+        return to_next if self.canvas is None else self.canvas.shift @ to_next
+
+    def _panned_to(self) -> dict[int, np.ndarray]:
+        """segment -> its reference's pixels to the previous reference's, for the references
+        the camera panned on to (built once: a long clip asks for every frame)."""
+        if self._pans is None:
+            self._pans = {r.segment: r.to_previous for r in self.frames.values() if r.to_previous is not None}
+        return self._pans
 
     @property
     def references(self) -> int:
@@ -88,10 +149,12 @@ class CameraMotion:
                 "to_reference": None if r.to_reference is None else r.to_reference.tolist(),
                 "segment": r.segment,
                 "note": r.note,
+                "to_previous": None if r.to_previous is None else r.to_previous.tolist(),
             }
             for r in self.frames.values()
         ]
-        write_json(path, {"moving": self.moving, "frames": rows})
+        canvas = None if self.canvas is None else dataclasses.astuple(self.canvas)
+        write_json(path, {"moving": self.moving, "canvas": canvas, "frames": rows})
 
     @classmethod
     def load(cls, path: Path) -> CameraMotion:
@@ -101,11 +164,16 @@ class CameraMotion:
             raise SfbError(f"cannot read the camera's motion in {path}: {exc}") from None
         frames = {
             r["index"]: Registration(
-                r["index"], None if r["to_reference"] is None else np.array(r["to_reference"]), r["segment"], r["note"]
+                r["index"],
+                None if r["to_reference"] is None else np.array(r["to_reference"]),
+                r["segment"],
+                r["note"],
+                None if r.get("to_previous") is None else np.array(r["to_previous"]),
             )
             for r in data["frames"]
         }
-        return cls(frames, bool(data["moving"]))
+        canvas = data.get("canvas")
+        return cls(frames, bool(data["moving"]), None if canvas is None else Canvas(*canvas))
 
 
 @dataclass(frozen=True)
@@ -227,6 +295,7 @@ def register_frames(frames: Iterable[tuple[int, torch.Tensor]], config: CameraCo
         found = features(image, config.features)
         textured = len(found.keypoints) >= config.min_inliers
         anchor = None  # why this frame becomes a reference, when it does
+        to_previous = None
         if reference is None or (textured and len(reference.keypoints) < config.min_inliers):
             # The first frame, or one with texture after a reference without (a fade from black).
             anchor = ""
@@ -239,7 +308,7 @@ def register_frames(frames: Iterable[tuple[int, torch.Tensor]], config: CameraCo
             if to_reference is not None:
                 to_reference = refine(found, reference, to_reference)
                 if overlap(to_reference, found.size) < config.min_overlap:
-                    anchor = "new reference"  # the camera has moved on
+                    anchor, to_previous = "new reference", to_reference  # the camera has moved on
             elif textured and failures >= 1:
                 # Two textured frames in a row that match nothing before them: a cut to a new view.
                 anchor = "new reference after a cut"
@@ -250,7 +319,7 @@ def register_frames(frames: Iterable[tuple[int, torch.Tensor]], config: CameraCo
         if anchor is not None:
             reference, segment, to_reference, note = found, segment + 1, np.eye(3), anchor
         failures = 0
-        motion.frames[index] = Registration(index, to_reference, segment, note)
+        motion.frames[index] = Registration(index, to_reference, segment, note, to_previous)
         previous = (found, to_reference)
     alone = Counter(r.segment for r in motion.frames.values() if r.to_reference is not None)
     for index, r in motion.frames.items():
@@ -264,40 +333,67 @@ def register_frames(frames: Iterable[tuple[int, torch.Tensor]], config: CameraCo
         for r in motion.frames.values()
         if r.to_reference is not None and size is not None
     )
+    if size is not None:
+        motion.canvas = canvas_of(motion, size, config.max_margin)
     return motion
 
 
-def warp(image: torch.Tensor, to_reference: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-    """A (3, H, W) frame (uint8 or float) in its reference's pixels, and the (H, W) bool pixels
-    it covers there (the rest repeat its border)."""
-    height, width = image.shape[1:]
+def canvas_of(motion: CameraMotion, size: tuple[int, int], max_margin: float) -> Canvas:
+    """The canvas that holds every registered frame of ``motion`` drawn in its reference's
+    coordinates (frames of ``size`` = (width, height)), its margins at most ``max_margin`` of
+    the frame's side: a transform gone wild does not make a huge canvas."""
+    width, height = size
+    corners = np.array([[[0, 0], [width - 1, 0], [width - 1, height - 1], [0, height - 1]]], dtype=np.float64)
+    reach = np.zeros(4)  # how far past the reference's left, top, right and bottom pixel centres
+    for r in motion.frames.values():
+        if r.to_reference is not None:
+            moved = cv2.perspectiveTransform(corners, r.to_reference)[0]
+            low, high = moved.min(0), moved.max(0) - (width - 1, height - 1)
+            reach = np.maximum(reach, [-low[0], -low[1], high[0], high[1]])
+    # A pixel centre within half a pixel of the border is the border's (warp repeats it).
+    sides = (width, height, width, height)
+    left, top, right, bottom = (
+        min(max(0, math.ceil(float(r) - 0.5)), math.floor(max_margin * side))
+        for r, side in zip(reach, sides, strict=True)
+    )
+    return Canvas(left, top, width + left + right, height + top + bottom)
+
+
+def warp(
+    image: torch.Tensor, to_canvas: np.ndarray, size: tuple[int, int] | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A (3, H, W) frame (uint8 or float) drawn on its reference's canvas of ``size`` (width,
+    height; the frame's own when None), and the (h, w) bool pixels it covers there (the rest
+    repeat its border)."""
+    width, height = size if size is not None else (image.shape[2], image.shape[1])
     pixels = np.ascontiguousarray(image.permute(1, 2, 0).cpu().numpy())
     # Lanczos, not bilinear: bilinear's blur differs with each frame's sub-pixel offset, and a
     # fence's wires then differ from their median (a shaken fence's recall 0.25 -> 0.75).
     flags = cv2.INTER_LANCZOS4
-    out = cv2.warpPerspective(pixels, to_reference, (width, height), flags=flags, borderMode=cv2.BORDER_REPLICATE)
+    out = cv2.warpPerspective(pixels, to_canvas, (width, height), flags=flags, borderMode=cv2.BORDER_REPLICATE)
     if out.dtype != np.uint8:  # Lanczos rings past [0, 1]; uint8 saturates by itself
         out = np.clip(out, 0.0, 1.0)
     covered = cv2.warpPerspective(
-        np.ones((height, width), np.uint8), to_reference, (width, height), flags=cv2.INTER_NEAREST
+        np.ones(image.shape[1:], np.uint8), to_canvas, (width, height), flags=cv2.INTER_NEAREST
     )
     return torch.from_numpy(out).permute(2, 0, 1).contiguous(), torch.from_numpy(covered > 0)
 
 
-def unwarp(image: torch.Tensor, to_reference: np.ndarray) -> torch.Tensor:
-    """A (3, H, W) or (H, W) image in the reference's pixels brought back into the frame's own;
-    a plane (weights) is 0 where the reference does not reach, an image repeats its border."""
+def unwarp(image: torch.Tensor, to_canvas: np.ndarray, size: tuple[int, int] | None = None) -> torch.Tensor:
+    """A (3, h, w) or (h, w) image on the canvas brought back into the frame's own pixels, of
+    ``size`` (width, height; the canvas's when None); a plane (weights) is 0 where the canvas
+    does not reach, an image repeats its border."""
     planar = image.ndim == 2
-    height, width = image.shape[-2:]
+    width, height = size if size is not None else (image.shape[-1], image.shape[-2])
     pixels = np.ascontiguousarray((image if planar else image.permute(1, 2, 0)).cpu().numpy())
     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
     border = cv2.BORDER_CONSTANT if planar else cv2.BORDER_REPLICATE
-    out = cv2.warpPerspective(pixels, to_reference, (width, height), flags=flags, borderMode=border)
+    out = cv2.warpPerspective(pixels, to_canvas, (width, height), flags=flags, borderMode=border)
     back = torch.from_numpy(np.ascontiguousarray(out))
     return back if planar else back.permute(2, 0, 1).contiguous()
 
 
-def to_frame(points: torch.Tensor, to_reference: np.ndarray) -> torch.Tensor:
-    """(N, 2) pixel positions in the reference's coordinates, in the frame's own."""
-    back = cv2.perspectiveTransform(points.detach().cpu().double().numpy()[None], np.linalg.inv(to_reference))[0]
+def to_frame(points: torch.Tensor, to_canvas: np.ndarray) -> torch.Tensor:
+    """(N, 2) pixel positions on the canvas, in the frame's own."""
+    back = cv2.perspectiveTransform(points.detach().cpu().double().numpy()[None], np.linalg.inv(to_canvas))[0]
     return torch.from_numpy(back).to(points)

@@ -23,7 +23,7 @@ from sfb_video.errors import ConfigError, SfbError
 from sfb_video.imageio import as_float, read_image
 from sfb_video.registration import CameraMotion
 from sfb_video.stages.read import read_frames
-from sfb_video.stages.register import registered, segment_of, usable
+from sfb_video.stages.register import onto_canvas, onto_next, registered, segment_of, usable
 from sfb_video.stages.types import Frame, FrameWithBackground
 from sfb_video.timing import timed, timed_iter
 
@@ -97,20 +97,37 @@ def running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBa
     head = list(islice(stream, 2))
     if len(head) < 2:
         raise SfbError("a running-median background needs at least 2 frames; give a background image instead")
+    carried: list[Frame] = []
     for _, group in groupby(chain(head, stream), key=segment_of):
-        yield from _running_median(group, window)
+        last: deque[Frame] = deque(maxlen=window)
+        yield from _running_median(_kept(group, last), window, carried)
+        # A camera that pans on to a new reference: its first frames' background starts from
+        # the last frames before it, drawn there, not from a few frames of its own (in which a
+        # slow object leaves a ghost).
+        carried = [moved for moved in map(onto_next, last) if moved is not None]
 
 
-def _running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBackground]:
+def _kept(frames: Iterable[Frame], last: deque[Frame]) -> Iterator[Frame]:
+    """``frames``, keeping the usable ones in ``last`` as they pass."""
+    for frame in frames:
+        if usable(frame):
+            last.append(frame)
+        yield frame
+
+
+def _running_median(frames: Iterable[Frame], window: int, carried: list[Frame]) -> Iterator[FrameWithBackground]:
     stream = iter(frames)
-    head = list(islice(stream, window + 1))
-    seen = [f for f in head if usable(f)]
-    for frame in head[:window]:
-        others = [f for f in seen if f is not frame]
-        # A reference seen by one frame only has nothing to compare with: no difference.
-        background = _median([f.image for f in others], [_cover(f) for f in others]) if others else frame.image
-        yield _paired(frame, background, _seen(others))
-    previous = deque((f for f in head[:window] if usable(f)), maxlen=window)
+    if len(carried) < window:
+        head = list(islice(stream, window + 1))
+        seen = carried + [f for f in head if usable(f)]
+        for frame in head[:window]:
+            others = [f for f in seen if f is not frame]
+            # A reference seen by one frame only has nothing to compare with: no difference.
+            background = _median([f.image for f in others], [_cover(f) for f in others]) if others else frame.image
+            yield _paired(frame, background, _seen(others))
+        previous = deque(carried + [f for f in head[:window] if usable(f)], maxlen=window)
+    else:
+        head, previous = [], deque(carried, maxlen=window)
     for frame in chain(head[window:], stream):
         known = list(previous)
         background = _median([f.image for f in known], [_cover(f) for f in known]) if known else frame.image
@@ -144,15 +161,18 @@ def _quantised(image: torch.Tensor) -> torch.Tensor:
     return image if image.dtype == torch.uint8 else image.mul(255).round_().to(torch.uint8)
 
 
-def fixed_background(frames: Iterable[Frame], background: torch.Tensor) -> Iterator[FrameWithBackground]:
-    """Pair every frame with one given background image."""
+def fixed_background(
+    frames: Iterable[Frame], background: torch.Tensor, shown: torch.Tensor | None = None
+) -> Iterator[FrameWithBackground]:
+    """Pair every frame with one given background image, of which only the (H, W) bool pixels
+    ``shown`` are known (None: all; see :func:`sfb_video.stages.register.onto_canvas`)."""
     for frame in frames:
         if frame.image.shape != background.shape:
             raise SfbError(
                 f"the background is {background.shape[2]}x{background.shape[1]} but the frames are "
                 f"{frame.image.shape[2]}x{frame.image.shape[1]}"
             )
-        yield _paired(frame, background)
+        yield _paired(frame, background, shown)
 
 
 def frames_read(frames: range | None, config: VideoConfig) -> range | None:
@@ -187,7 +207,7 @@ def with_backgrounds(
     if motion is not None and motion.references > 1 and background is not None:
         raise SfbError("the camera pans beyond its first view: a background image shows one view; leave it out")
     if background is not None:
-        return timed_iter("background", fixed_background(stream, read_image(background)))
+        return timed_iter("background", fixed_background(stream, *onto_canvas(read_image(background), motion)))
     if config.background == "running":
         if frames is None:
             return timed_iter("background", running_median(stream, config.background_window))

@@ -116,26 +116,28 @@ class Pasted(Sequence[torch.Tensor]):
 
 
 class Unwarped(Sequence[torch.Tensor]):
-    """A registered frame's rendered sub-frames (full frames in its reference's coordinates)
-    brought back into the frame as filmed: the objects' regions of each are warped back and
-    blended into the original frame, so the rest keeps the frame's own pixels.
+    """A registered frame's rendered sub-frames (full frames on its reference's canvas) brought
+    back into the frame as filmed: the objects' regions of each are warped back and blended
+    into the original frame, so the rest keeps the frame's own pixels.
 
     Args:
-        subframes: the sub-frames in the reference's coordinates.
+        subframes: the sub-frames on the reference's canvas.
         registered: the frame's registration.
     """
 
     def __init__(self, subframes: Pasted, registered: Registered) -> None:
-        assert registered.to_reference is not None
+        assert registered.to_canvas is not None
         self.subframes, self.registered = subframes, registered
-        self.weights = unwarp(subframes.weights(), registered.to_reference)
+        height, width = registered.original.shape[1:]
+        self.size = (width, height)
+        self.weights = unwarp(subframes.weights(), registered.to_canvas, self.size)
 
     def __len__(self) -> int:
         return len(self.subframes)
 
     def __getitem__(self, k: int) -> torch.Tensor:  # type: ignore[override]
         original = self.registered.original
-        back = unwarp(self.subframes[k], self.registered.to_reference).float()
+        back = unwarp(self.subframes[k], self.registered.to_canvas, self.size).float()
         blended = original.float() + self.weights * (back - original.float())
         return blended.round_().to(torch.uint8) if original.dtype == torch.uint8 else blended
 
@@ -156,8 +158,9 @@ def as_filmed(frame: FrameWithBackground, subframes: Pasted, config: Config) -> 
 
 
 def unfitted(frame: FrameWithBackground, config: Config) -> torch.Tensor:
-    """What ``tsr.mp4`` shows of a frame without a fit: the frame as filmed (or stabilised)."""
-    if frame.registered is None or (config.camera.stabilised and not frame.registered.failed):
+    """What ``tsr.mp4`` shows of a frame without a fit: the frame as filmed, or stabilised (a
+    frame that did not register shows its reference's background there)."""
+    if frame.registered is None or config.camera.stabilised:
         return frame.pixels
     return frame.registered.original
 
@@ -390,11 +393,11 @@ def _rows(
         yield row
 
 
-def _to_frame(rows: list[dict[str, float | int | str]], to_reference: np.ndarray) -> None:
-    """Move the rows' image positions from the reference's pixels into the frame's own (the
-    3D positions stay in the reference camera)."""
+def _to_frame(rows: list[dict[str, float | int | str]], to_canvas: np.ndarray) -> None:
+    """Move the rows' image positions from the canvas's pixels into the frame's own (the 3D
+    positions stay in the reference camera)."""
     uv = torch.tensor([[float(r["u_px"]), float(r["v_px"])] for r in rows], dtype=torch.float64)
-    for row, (u, v) in zip(rows, to_frame(uv, to_reference).tolist(), strict=True):
+    for row, (u, v) in zip(rows, to_frame(uv, to_canvas).tolist(), strict=True):
         row["u_px"], row["v_px"] = u, v
 
 
@@ -479,14 +482,15 @@ def export_frames(
     statuses: list[FrameStatus],
     windows: list[Window],
     camera: PinholeCamera,
+    size: tuple[int, int],
     fps: float,
     n: int,
     config: Config,
     name: str,
     diameter: float | None,
 ) -> Exported:
-    """Stream the clip once and write ``tsr.mp4`` (N sub-frames per fitted frame, every object
-    of the frame in them; the frame N times otherwise), ``recording.rrd``,
+    """Stream the clip once and write ``tsr.mp4`` (of ``size`` (width, height); N sub-frames
+    per fitted frame, every object of the frame in them; the frame N times otherwise), ``recording.rrd``,
     ``meshes/frame_XXXXX_track_YY.glb`` and one ``meshes/track_YY.glb`` per track (its lowest-L_I
     frame's mesh), loading each object's saved result (and its window's joint fit) only while it
     is needed, so memory does not grow with the clip."""
@@ -501,7 +505,7 @@ def export_frames(
     joint = _Windows(folder, windows)
     ensure_folder(folder / MESHES)
     with (
-        VideoWriter(folder / TSR_VIDEO, fps * n, camera.width, camera.height) as video,
+        VideoWriter(folder / TSR_VIDEO, fps * n, *size) as video,
         Recorder(folder / RECORDING, camera, name) as recorder,
     ):
         for frame in frames:
@@ -538,8 +542,8 @@ def export_frames(
                     if frame.index + 1 in window.result.losses:
                         rows += gap_rows(window.result.trajectory, frame.index, camera, n, fps, diameter)
                 if mapped_back(frame, config):
-                    assert frame.registered is not None and frame.registered.to_reference is not None
-                    _to_frame(rows, frame.registered.to_reference)
+                    assert frame.registered is not None and frame.registered.to_canvas is not None
+                    _to_frame(rows, frame.registered.to_canvas)
                 points = trajectory.setdefault(result.track, [])
                 points.append(np.array([[r["x"], r["y"], r["z"]] for r in rows], dtype=np.float32))
                 recorder.log_trajectory(np.concatenate(points), result.track)

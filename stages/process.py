@@ -100,6 +100,12 @@ def clip_camera(info: VideoInfo, config: Config, focal_px: float | None) -> Pinh
     return PinholeCamera(focal_px, focal_px, (info.width - 1) / 2, (info.height - 1) / 2, info.width, info.height)
 
 
+def on_canvas(camera: PinholeCamera, motion: CameraMotion | None) -> PinholeCamera:
+    """The clip's ``camera`` as it sees a moving camera's registered frames: the reference's,
+    rendering the canvas they are drawn on."""
+    return camera if motion is None or motion.canvas is None else motion.canvas.camera(camera)
+
+
 def _run_record(options: ProcessOptions, frames: range | None, config: Config, masks: MaskSource) -> dict:
     video = options.video.resolve()
     stat = video.stat()
@@ -148,11 +154,13 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
         raise SfbError(f"--tsr must be at least 1, got {tsr}")
     video = Path(record["video"])
     info = probe(video, config.video)
-    camera = clip_camera(info, config, record["focal_px"])
     frames = None if record["frames"] is None else range(*record["frames"])
     background = None if record["background"] is None else Path(record["background"])
     saved_motion = (folder / CAMERA_MOTION).is_file() and config.camera.motion != "off"
     motion = CameraMotion.load(folder / CAMERA_MOTION) if saved_motion else None
+    camera = on_canvas(clip_camera(info, config, record["focal_px"]), motion)
+    # tsr.mp4 shows each frame as filmed, or (stabilised) the canvas as the camera renders it.
+    size = (camera.width, camera.height) if config.camera.stabilised else (info.width, info.height)
     stream = with_backgrounds(video, config.video, info.frame_count, frames, background, motion)
     windows = track_windows(statuses, config.joint.window, config.joint.overlap) if config.joint.enabled else []
     # A window whose joint fit diverged was not saved, and one that explains its frames worse
@@ -162,7 +170,7 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     windows = [w for w in windows if load_window(window_path(folder, w[0], w[1][0])).accepted]
     diameter = record["object_diameter"]
     name = printable(video.stem)
-    done = export_frames(folder, stream, statuses, windows, camera, info.fps, tsr, config, name, diameter)
+    done = export_frames(folder, stream, statuses, windows, camera, size, info.fps, tsr, config, name, diameter)
     write_csv(folder / TRAJECTORY, done.rows)
     summary = _summary(record, info, statuses, done, tsr, device_note, config.video.min_explained)
     summary["tracks"] = _track_summary(statuses, done)
@@ -386,6 +394,7 @@ def _process(
     motion = camera_motion(options.video, frames_read(selected, config.video), config.camera)
     if motion is not None:
         motion.save(run.work / CAMERA_MOTION)
+    camera = on_canvas(camera, motion)
     frames = with_backgrounds(options.video, config.video, info.frame_count, selected, options.background, motion)
     # disable=None: no bar when stderr is not a terminal (logs, CI).
     with tqdm(total=total, unit="frame", desc=printable(options.video.name), disable=True if quiet else None) as bar:

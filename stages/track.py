@@ -42,7 +42,7 @@ from sfb_video.stages.detect import (
 )
 from sfb_video.stages.fit import continued, fit_detection
 from sfb_video.stages.masks import MaskSource
-from sfb_video.stages.register import segment_of, usable
+from sfb_video.stages.register import mask_onto_next, segment_of, usable
 from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground, Prediction
 
 StepReport = Callable[[FrameStatus, FrameResult | None], None]
@@ -124,8 +124,18 @@ def with_neighbours(
         def kin(other: tuple[FrameWithBackground, torch.Tensor]) -> bool:
             return segment_of(other[0]) == segment_of(frame) and usable(other[0])
 
+        def earlier_mask(other: tuple[FrameWithBackground, torch.Tensor]) -> torch.Tensor | None:
+            if kin(other):
+                return other[1]
+            # The camera panned on to this frame's reference: the frames before it still show
+            # where the object was, their masks drawn here, so that a reference's first frame
+            # is not cut short by a later frame's streak alone, as a clip's first frame is.
+            if segment_of(other[0]) + 1 == segment_of(frame) and usable(other[0]):
+                return mask_onto_next(other[0], other[1])
+            return None
+
         after = [f for f in ahead if kin(f)]
-        earlier = [f for f in history if kin(f)]
+        earlier = [m for m in map(earlier_mask, history) if m is not None]
         before = [earlier[0]] if len(earlier) == 2 else []
         later = [after[1]] if len(after) == 2 else []
         if not before and not later:  # a clip of three frames or fewer
@@ -137,7 +147,7 @@ def with_neighbours(
             frame,
             mask,
             [
-                *(Neighbour(m, torch.zeros_like(m)) for _, m in before),
+                *(Neighbour(m, torch.zeros_like(m)) for m in before),
                 *(Neighbour(m, still_there(frame.pixels, frame.background_pixels, f.pixels)) for f, m in later),
             ],
         )

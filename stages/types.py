@@ -22,24 +22,29 @@ class Registered:
     (:mod:`sfb_video.registration`).
 
     Attributes:
-        to_reference: (3, 3) the homography from the frame's pixels to its reference's; None
-            where registration failed (the frame is not fitted, and shows only the background).
+        to_canvas: (3, 3) the homography from the frame's pixels to its reference's canvas
+            (:class:`sfb_video.registration.Canvas`); None where registration failed (the frame
+            is not fitted, and shows only the background).
         original: (3, H, W) the frame as filmed, in the frame's dtype.
-        covered: (H, W) bool, the reference's pixels the frame covers (the rest repeat its
+        covered: (h, w) bool, the canvas's pixels the frame covers (the rest repeat its
             border, and are not compared with the background).
         segment: which reference frame (a pan longer than the frame takes several).
         note: why registration failed.
+        to_next: (3, 3) the frame's pixels to the next reference's canvas, where the camera
+            panned on to one (None: the last reference, or a cut): the new reference's
+            background starts from the frames before it.
     """
 
-    to_reference: np.ndarray | None
+    to_canvas: np.ndarray | None
     original: torch.Tensor
     covered: torch.Tensor
     segment: int
     note: str = ""
+    to_next: np.ndarray | None = None
 
     @property
     def failed(self) -> bool:
-        return self.to_reference is None
+        return self.to_canvas is None
 
 
 @dataclass(frozen=True)

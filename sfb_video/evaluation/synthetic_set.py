@@ -28,7 +28,7 @@ from sfb_video.errors import SfbError
 from sfb_video.evaluation.datasets import BenchmarkFrame
 from sfb_video.registration import register_frames
 from sfb_video.stages.background import fixed_background
-from sfb_video.stages.register import registered, usable
+from sfb_video.stages.register import onto_canvas, registered, usable
 from sfb_video.stages.types import Frame
 from sfb_video.synth import ClipSpec, SyntheticClip
 from sfb_video.synth.io import load_clip, write_clip
@@ -212,8 +212,13 @@ def shaken_frames(clip: SyntheticClip) -> list[np.ndarray | None]:
     tensors = [torch.from_numpy(np.ascontiguousarray(f)).permute(2, 0, 1) for f in shake_frames(clip.frames, moves)]
     motion = register_frames(enumerate(tensors), CameraConfig())
     background = torch.from_numpy(np.ascontiguousarray(clip.scene.background)).permute(2, 0, 1)
-    paired = fixed_background(registered((Frame(k, t) for k, t in enumerate(tensors)), motion), background)
-    return [f.pixels.permute(1, 2, 0).numpy() if usable(f) else None for f in paired]
+    canvas = motion.canvas
+    assert canvas is not None
+    frames = registered((Frame(k, t) for k, t in enumerate(tensors)), motion)
+    paired = fixed_background(frames, *onto_canvas(background, motion))
+    # Scored against the still truth: the first frame's view, cut from the canvas.
+    view = (slice(None), slice(canvas.top, canvas.top + size[1]), slice(canvas.left, canvas.left + size[0]))
+    return [f.pixels[view].permute(1, 2, 0).numpy() if usable(f) else None for f in paired]
 
 
 def list_synthetic(root: Path | str, dataset: str = "synthetic", shaken: bool = False) -> list[SyntheticSequence]:

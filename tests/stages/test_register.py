@@ -98,12 +98,19 @@ def test_the_trajectory_positions_are_in_each_frames_own_pixels(runs: Runs) -> N
     assert statistics.median(own) < 0.25 * 2 * statistics.mean(t.radius_px for t in runs.clip.truth)
 
 
-def _away_from_the_object(runs: Runs, tsr: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The most moved frame's first sub-frame in ``tsr``, the same frame shaken and held still,
-    each (P, 3) over the pixels away from the object and the frame's edges."""
+def _away_from_the_object(
+    runs: Runs, tsr: Path, canvas: tuple[int, int] = (0, 0)
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The most moved frame's first sub-frame in ``tsr`` (the reference's view of it, for a
+    stabilised clip drawn on a canvas whose ``canvas`` = (left, top) margin holds it), the same
+    frame shaken and held still, each (P, 3) over the pixels away from the object and the
+    frame's edges."""
     n = runs.config.video.tsr
+    height, width = runs.clip.frames[0].shape[:2]
+    left, top = canvas
     with av.open(str(tsr)) as container:
-        subframes = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+        view = (slice(top, top + height), slice(left, left + width))
+        subframes = [f.to_ndarray(format="rgb24")[view] for f in container.decode(video=0)]
     k = max(range(1, len(runs.clip.frames)), key=lambda i: float(np.linalg.norm(runs.moves[i][:2, 2])))
     shaken = shake_frames(runs.clip.frames, runs.moves)[k].astype(np.float64)
     still = runs.clip.frames[k].astype(np.float64)
@@ -173,12 +180,12 @@ def test_a_registered_8_bit_clip_over_a_float_background_image_stays_in_range() 
     from sfb_video.imageio import as_float
     from sfb_video.registration import register_frames
     from sfb_video.stages.background import fixed_background
-    from sfb_video.stages.register import registered
+    from sfb_video.stages.register import onto_canvas, registered
 
     frames = _pan_frames(3)
     motion = register_frames(((f.index, f.image) for f in frames), CameraConfig())
-    background = as_float(frames[0].image)
-    for f in fixed_background(registered(frames, motion), background):
+    background, shown = onto_canvas(as_float(frames[0].image), motion)
+    for f in fixed_background(registered(frames, motion), background, shown):
         assert f.pixels.dtype == torch.float32 and float(f.pixels.max()) <= 1.0
         assert float((f.pixels - f.background_pixels).abs().mean()) < 0.03
 
@@ -192,38 +199,69 @@ def test_stabilised_export_shows_the_reference_view(runs: Runs, tmp_path: Path) 
     folder = tmp_path / "run"
     shutil.copytree(runs.shaken, folder)
     assert main(["export", str(folder), "--stabilised", "--quiet"]) == 0
-    sub, shaken, still = _away_from_the_object(runs, folder / "tsr.mp4")
+    left, top, width, height = json.loads((folder / "camera_motion.json").read_text())["canvas"]
+    with av.open(str(folder / "tsr.mp4")) as container:
+        stream = container.streams.video[0]  # yuv420p pads an odd side by one
+        assert (stream.width, stream.height) == (width + width % 2, height + height % 2)
+    sub, shaken, still = _away_from_the_object(runs, folder / "tsr.mp4", (left, top))
     assert np.abs(sub - still).mean() < 0.5 * np.abs(sub - shaken).mean()
 
 
-def test_a_pan_past_the_first_view_splits_its_tracks_at_the_new_reference(tmp_path: Path) -> None:
+@dataclasses.dataclass(frozen=True)
+class Pan:
+    clip: SyntheticClip
+    run: Path
+    segment: dict[int, int]  # frame -> its reference
+    rows: list[dict[str, str]]  # trajectory.csv
+
+
+PAN_PX = 20
+
+
+@pytest.fixture(scope="module")
+def pan(tmp_path_factory: pytest.TempPathFactory) -> Pan:
     # The demo clip rendered 640 wide and a 320-wide view panned across it 20 px a frame: the
-    # view leaves the first frame's behind (overlap under 0.6) by the seventh frame.
+    # view leaves the first frame's behind (overlap under 0.6) by the seventh frame, while the
+    # object drifts right in the view, beyond the first frame's view from the fifth.
     from sfb_video.video import VideoWriter
 
+    root = tmp_path_factory.mktemp("pan")
     config = demo_config(load_config("fast", ["joint.enabled=false", "video.min_track_frames=1"]))
     config = dataclasses.replace(config, demo=dataclasses.replace(config.demo, width=640, frames=12))
     clip = demo_clip(config)
-    video = tmp_path / "pan.mp4"
+    video = root / "pan.mp4"
     with VideoWriter(video, 30.0, 320, clip.spec.height) as writer:
         for k, frame in enumerate(clip.frames):
-            writer.write(np.ascontiguousarray(frame[:, 20 * k : 20 * k + 320]))
-    out = tmp_path / "run"
+            writer.write(np.ascontiguousarray(frame[:, PAN_PX * k : PAN_PX * k + 320]))
+    out = root / "run"
     process_clip(ProcessOptions(video=video, out=out), config, CPU, quiet=True)
     motion = json.loads((out / "camera_motion.json").read_text())
-    segment = {f["index"]: f["segment"] for f in motion["frames"]}
-    assert json.loads((out / "summary.json").read_text())["camera"]["references"] == 2
     with (out / "trajectory.csv").open() as f:
         rows = list(csv.DictReader(f))
+    return Pan(clip, out, {f["index"]: f["segment"] for f in motion["frames"]}, rows)
+
+
+def test_a_pan_past_the_first_view_splits_its_tracks_at_the_new_reference(pan: Pan) -> None:
+    assert json.loads((pan.run / "summary.json").read_text())["camera"]["references"] == 2
     # Each row's 3D position is in the camera of the reference its frame is registered to, and
     # no track carries on across a new reference (its 3D path would jump between cameras).
-    assert all(int(r["reference"]) == segment[int(r["frame"])] for r in rows)
-    assert {r["reference"] for r in rows} == {"0", "1"}
-    for track in {r["track"] for r in rows}:
-        assert len({r["reference"] for r in rows if r["track"] == track}) == 1
-    # The first reference's frames are where the object is, in each frame's own pixels.
-    for r in rows:
+    assert all(int(r["reference"]) == pan.segment[int(r["frame"])] for r in pan.rows)
+    assert {r["reference"] for r in pan.rows} == {"0", "1"}
+    for track in {r["track"] for r in pan.rows}:
+        assert len({r["reference"] for r in pan.rows if r["track"] == track}) == 1
+
+
+def test_a_pan_finds_the_object_beyond_its_references_view(pan: Pan) -> None:
+    # Frames 5-6 see the object beyond the first frame's view, frames 7-8 are the second
+    # reference's first (their background from the frames before it, drawn there). Frames 10-11
+    # see it in the strip the pan has just revealed, of which nothing earlier is known: left out.
+    summary = json.loads((pan.run / "summary.json").read_text())
+    boxes = {f["index"]: f["box"] for f in summary["frames"] if f["status"] == "fitted"}
+    for k in range(10):
+        assert boxes[k][2] >= 0.75 * pan.clip.truth[k].bbox[2], (k, boxes[k], pan.clip.truth[k].bbox)
+    # Where the object is, in each frame's own pixels.
+    for r in pan.rows:
         k, j = int(r["frame"]), int(r["subframe"])
-        if r["in_exposure"] == "1" and segment[k] == 0 and k < 5:
-            x, y = clip.truth[k].centres[j]
-            assert abs(float(r["u_px"]) - (x - 20 * k)) < 8 and abs(float(r["v_px"]) - y) < 8
+        if r["in_exposure"] == "1" and k < 10:
+            x, y = pan.clip.truth[k].centres[j]
+            assert abs(float(r["u_px"]) - (x - PAN_PX * k)) < 8 and abs(float(r["v_px"]) - y) < 8, (k, j)
