@@ -74,14 +74,16 @@ def _paired(frame: Frame, background: torch.Tensor, seen: torch.Tensor | None = 
     its reference (a repeated border) are the background's, and the background's pixels that
     no frame behind it ``seen`` are the frame's (a pan's newly seen strip), so that nothing
     shows where nothing is known."""
-    pixels = frame.image
+    pixels, known = frame.image, None
     if frame.registered is not None:
         if pixels.dtype != background.dtype:  # an 8-bit frame over a float background image
             pixels, background = as_float(pixels), as_float(background)
+        known = frame.registered.covered
         if seen is not None:
             background = torch.where(seen, background, pixels)
+            known = known & seen
         pixels = torch.where(frame.registered.covered, pixels, background)
-    return FrameWithBackground(frame.index, pixels, background, frame.registered)
+    return FrameWithBackground(frame.index, pixels, background, frame.registered, known)
 
 
 def running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBackground]:

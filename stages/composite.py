@@ -140,13 +140,18 @@ def object_radius(state: ObjectState, camera: PinholeCamera) -> float:
 
 
 def fitted_region(
-    state: ObjectState, camera: PinholeCamera, difference: np.ndarray, detect: DetectConfig
+    state: ObjectState,
+    camera: PinholeCamera,
+    difference: np.ndarray,
+    detect: DetectConfig,
+    known: torch.Tensor | None = None,
 ) -> np.ndarray:
     """(H, W) float32 :func:`object_region` weights of ``state``'s object in ``camera``'s image,
-    whose ||I - B|| is ``difference``: its path and the streak connected to it."""
+    whose ||I - B|| is ``difference`` (``known``: :func:`~sfb_video.stages.detect.weak_level`'s):
+    its path and the streak connected to it."""
     radius = object_radius(state, camera)
     path = path_mask(state.motion, radius, camera)
-    return object_region(path, difference, weak_level(difference, detect), REGION_REACH * radius)
+    return object_region(path, difference, weak_level(difference, detect, known), REGION_REACH * radius)
 
 
 def fit_quality(

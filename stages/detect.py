@@ -55,12 +55,17 @@ def difference_image(image: torch.Tensor, background: torch.Tensor) -> np.ndarra
     return difference
 
 
-def weak_level(difference: np.ndarray, config: DetectConfig) -> float:
+def weak_level(difference: np.ndarray, config: DetectConfig, known: torch.Tensor | None = None) -> float:
     """The hysteresis's lower threshold for a frame's ``difference`` (H, W): ``weak_noise``
-    times its noise level, at least ``weak_threshold`` and at most ``threshold``."""
+    times its noise level (over the ``known`` (H, W) bool pixels, all when None), at least
+    ``weak_threshold`` and at most ``threshold``."""
     height, width = difference.shape
+    every = (slice(None, None, max(1, height // 256)), slice(None, None, max(1, width // 256)))
+    sample = difference[every]
+    if known is not None and bool(known[every].any()):
+        sample = sample[known[every].cpu().numpy()]
     # Most pixels show only noise, so the median difference is the noise level.
-    noise = float(np.median(difference[:: max(1, height // 256), :: max(1, width // 256)]))
+    noise = float(np.median(sample))
     return min(config.threshold, max(config.weak_threshold, config.weak_noise * noise))
 
 
@@ -77,21 +82,27 @@ def hysteresis(difference: np.ndarray, strong: np.ndarray, level: float) -> np.n
 
 
 @timed("detect")
-def difference_mask(image: torch.Tensor, background: torch.Tensor, config: DetectConfig) -> torch.Tensor:
+def difference_mask(
+    image: torch.Tensor, background: torch.Tensor, config: DetectConfig, known: torch.Tensor | None = None
+) -> torch.Tensor:
     """(H, W) bool: ||I - B||_2 > threshold over RGB, with the weaker differences connected to
     those kept too (:func:`hysteresis` down to :func:`weak_level`), opened by an ``open_px``
     square.
 
     Args:
         image, background: (3, H, W), each uint8 or float32 in [0, 1] (as frames are kept).
+        known: (H, W) bool the pixels compared with a background (a moving camera's,
+            :attr:`~sfb_video.stages.types.FrameWithBackground.known`; None: all).
     """
-    return threshold_difference(difference_image(image, background), config)
+    return threshold_difference(difference_image(image, background), config, known)
 
 
-def threshold_difference(difference: np.ndarray, config: DetectConfig) -> torch.Tensor:
+def threshold_difference(
+    difference: np.ndarray, config: DetectConfig, known: torch.Tensor | None = None
+) -> torch.Tensor:
     """:func:`difference_mask` of a frame's (H, W) :func:`difference_image`."""
     strong = difference > config.threshold
-    return _opened(hysteresis(difference, strong, weak_level(difference, config)), config)
+    return _opened(hysteresis(difference, strong, weak_level(difference, config, known)), config)
 
 
 @timed("detect")

@@ -256,7 +256,7 @@ def render_frame(
     """
     if difference is None:
         difference = difference_image(frame.pixels, frame.background_pixels)
-    region = fitted_region(result.state, camera, difference, config.detect)
+    region = fitted_region(result.state, camera, difference, config.detect, frame.known)
     box = region_box(region, streak_box(result, camera))
     x, y, w, h = box
     patch_bg = as_float(frame.background_pixels[:, y : y + h, x : x + w])
@@ -511,7 +511,7 @@ def export_frames(
         for frame in frames:
             recorder.log_frame(frame.index, frame.pixels, frame.background_pixels)
             difference = difference_image(frame.pixels, frame.background_pixels)
-            mask = threshold_difference(difference, config.detect)
+            mask = threshold_difference(difference, config.detect, frame.known)
             present = [s for s in fitted.get(frame.index, []) if frame_path(folder, s.index, s.track).is_file()]
             boxes = {s.track: s.box for s in present if s.box is not None}
             recorder.log_detection(frame.index, boxes, mask)

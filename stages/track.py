@@ -153,7 +153,7 @@ def with_neighbours(
         )
 
     for frame in frames:
-        ahead.append((frame, difference_mask(frame.pixels, frame.background_pixels, config.detect)))
+        ahead.append((frame, difference_mask(frame.pixels, frame.background_pixels, config.detect, frame.known)))
         if len(ahead) == 3:
             yield emit()
     while ahead:
@@ -201,7 +201,7 @@ def follow_box(
         the track's last frame in the direction that predicted it, or None.
     """
     x, y, w, h = box
-    changed = difference_mask(frame.pixels, frame.background_pixels, config.detect)[y : y + h, x : x + w]
+    changed = difference_mask(frame.pixels, frame.background_pixels, config.detect, frame.known)[y : y + h, x : x + w]
     blob = torch.zeros(frame.pixels.shape[1:], dtype=torch.bool)
     blob[y : y + h, x : x + w] = True
     ys, xs = torch.nonzero(changed, as_tuple=True)

@@ -74,12 +74,16 @@ class FrameWithBackground:
             reference's coordinates when ``registered`` (pixels it does not cover are the
             background's).
         registered: the frame's registration, for a moving camera.
+        known: (H, W) bool the pixels compared with a background (None: all); a moving
+            camera's frame is its background's elsewhere (what it does not cover, what no frame
+            before it saw), so those pixels say nothing of its noise.
     """
 
     index: int
     pixels: torch.Tensor
     background_pixels: torch.Tensor
     registered: Registered | None = None
+    known: torch.Tensor | None = None
 
     @property
     def image(self) -> torch.Tensor:

@@ -132,3 +132,21 @@ def test_another_fast_mover_beside_the_chosen_one_is_counted() -> None:
     found = detect(0, _mask(one, other, speck), [], None, CONFIG)
     assert found is not None and found.box == one and found.others == 1  # the speck is noise
     assert detect(0, _mask(one), [], None, CONFIG).others == 0
+
+
+def test_the_weak_level_is_the_noise_of_the_pixels_compared_with_a_background() -> None:
+    # A moving camera's frame equals its background where it saw nothing (a pan's margin):
+    # those zeros are not its noise, or a noisy frame's weak level falls and a fence's faint
+    # differences grow into a blob larger than the object.
+    import numpy as np
+
+    from sfb_video.stages.detect import weak_level
+
+    rng = np.random.default_rng(0)
+    difference = rng.uniform(0.015, 0.025, size=(120, 160)).astype(np.float32)
+    known = torch.ones(120, 160, dtype=torch.bool)
+    known[:, 64:] = False
+    difference[:, 64:] = 0.0
+    assert weak_level(difference, CONFIG) == CONFIG.weak_threshold
+    noise = float(np.median(difference[:, :64]))
+    assert abs(weak_level(difference, CONFIG, known) - CONFIG.weak_noise * noise) < 1e-3

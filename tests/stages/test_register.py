@@ -173,6 +173,8 @@ def test_a_pans_newly_seen_strip_shows_no_difference() -> None:
     first = paired[0]
     strip = (first.pixels.float() - first.background_pixels.float()).abs()[:, :, :25]
     assert float(strip.max()) == 0.0
+    # Nor is its noise: the detection's noise level is of the pixels it does compare.
+    assert first.known is not None and not first.known[:, :25].any() and first.known[:, 40:230].all()
 
 
 def test_a_registered_8_bit_clip_over_a_float_background_image_stays_in_range() -> None:
