@@ -31,7 +31,7 @@ from sfb_video.synth import ClipSpec, generate_clip
 from sfb_video.video import VideoWriter
 
 FRAMES = 30
-STAGES = ("read", "background", "detect", "fit", "joint", "export", "recording")
+STAGES = ("read", "register", "background", "detect", "fit", "joint", "export", "recording")
 _COMMON = {"width": 640, "height": 480, "num_frames": FRAMES, "exposure_fraction": 0.8, "speed_range": (1.2, 1.5)}
 
 

@@ -24,7 +24,6 @@ from sfb_video.stages.types import Detection, FrameWithBackground
 from sfb_video.timing import timed
 
 
-@timed("fit")
 def continued(previous: FrameResult, earlier: FrameResult | None, index: int, exposure_fraction: float) -> Motion:
     """Frame ``index``'s motion as ``previous``'s continues: turning as the path turned from
     ``earlier`` (the frame before ``previous``, where there is one), else straight."""
@@ -34,6 +33,7 @@ def continued(previous: FrameResult, earlier: FrameResult | None, index: int, ex
     return continue_turning(earlier.state.motion, previous.state.motion, frames_ahead, exposure_fraction)
 
 
+@timed("fit")
 def fit_detection(
     frame: FrameWithBackground,
     detection: Detection,
