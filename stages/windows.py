@@ -197,6 +197,8 @@ def fit_track_window(
 
 def _quality(state: ObjectState, frame: WindowFrame, config: Config) -> float:
     crop = frame.crop
+    # A single-frame fit is loaded on the CPU; the crop is where the fit runs.
+    state = state.to(crop.image.device)
     return fit_quality(state, crop.image, crop.background, crop.camera, config.detect, config.render)
 
 

@@ -31,6 +31,12 @@ class ObjectState:
     texture: torch.Tensor
     motion: Motion
 
+    def to(self, device: torch.device | str) -> ObjectState:
+        """This state with every tensor on ``device``."""
+        return ObjectState(
+            self.vertices.to(device), self.topology.to(device), self.texture.to(device), self.motion.to(device)
+        )
+
     def render(self, camera: PinholeCamera, taus: torch.Tensor, settings: RenderConfig) -> RenderOutput:
         """Render the object at exposure times ``taus`` (T,) through ``camera``."""
         rotations, positions = self.motion.at(taus)

@@ -131,3 +131,46 @@ def test_only_a_divergence_skips_a_window_and_any_other_error_is_raised(
         fails_with(error)
         with pytest.raises(RuntimeError, match=str(error)):
             windows.fit_windows(iter(frames), tmp_path, statuses, camera, config, torch.device("cpu"))
+
+
+def _devices(*tensors: torch.Tensor) -> set[str]:
+    return {t.device.type for t in tensors}
+
+
+def test_a_window_scores_its_single_frame_fits_on_its_crops_device(tmp_path: Path, monkeypatch) -> None:
+    # Issue 35: process loads the single-frame fits on the CPU (load_result) while a window's
+    # crops are on the fitting device; on a GPU a state and a crop on two devices raise. The
+    # meta device stands in for the GPU: every state fit_quality is handed must be on it.
+    from sfb_video.crop import Crop
+    from sfb_video.fitting.window import WindowFrame
+    from sfb_video.results import FrameResult, load_result, save_result
+
+    meta = torch.device("meta")
+    camera = PinholeCamera.from_fov(64, 48, 45.0)
+    vertices, topology = load_prototype("sphere")
+    motion = Motion(torch.tensor([0.0, 0.0, 5.0]), torch.tensor([0.5, 0.0, 0.0]), torch.eye(3), torch.zeros(3))
+    state = ObjectState(vertices, topology, torch.rand(3, 8, 8), motion)
+    box = (0, 0, 64, 48)
+    for index in (0, 1):
+        save_result(tmp_path, FrameResult(index, box, box, camera, state, "cold", "sphere", {"image": 0.1}, [], 1.0))
+    image = torch.zeros(3, 48, 64, device=meta)
+    mask = torch.zeros(48, 64, dtype=torch.bool, device=meta)
+    crops = {i: WindowFrame(i, Crop((0, 0, 64, 48), camera, image, image, mask.float(), mask)) for i in (0, 1)}
+
+    class Joint:  # what fit_track_window reads of a window's joint fit
+        def state(self, index: int) -> ObjectState:
+            return state.to(meta)
+
+    seen: list[set[str]] = []
+
+    def quality(state: ObjectState, image: torch.Tensor, background: torch.Tensor, *_: object) -> float:
+        seen.append(_devices(state.vertices, state.texture, state.motion.x0, image, background))
+        return 0.5
+
+    monkeypatch.setattr(windows, "fit_window", lambda *args, **kwargs: Joint())
+    monkeypatch.setattr(windows, "fit_quality", quality)
+    config = load_config("fast", ['joint.refine="off"'])
+    single = lambda i: load_result(tmp_path / "frames" / f"frame_{i:05d}_track_00.pt")  # noqa: E731
+    saved = windows.fit_track_window(0, [0, 1], crops, single, None, camera, config)
+    assert saved.accepted and len(seen) == 4
+    assert all(devices == {"meta"} for devices in seen), seen
