@@ -296,10 +296,17 @@ class Tracker:
             return [(self._glided(index), self.previous)]
         options = [self.previous, self.previous.reversed()] if self.length == 1 else [self.previous]
         e = self.config.video.exposure_fraction
-        return [
+        predicted = [
             (dataclasses.replace(predict(continued(o, self.earlier, index, e), self.camera), colour=self.colour), o)
             for o in options
         ]
+        if self.earlier is not None:
+            # A second guess from the image: the last streak moved on at the pace of the last
+            # two. One frame's fit is unsure of its speed (a longer object moving less blurs
+            # alike) and a falling object gathers speed; follow keeps the guess whose blob lands
+            # nearer (falling_two: the 3D guess lagged one object by 88 px, and took the other).
+            predicted.append((self._glided(index), self.previous))
+        return predicted
 
     def _glided(self, index: int) -> Prediction:
         """Frame ``index``'s prediction past frames without a clean fit: the last clean streak

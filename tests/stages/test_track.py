@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -13,11 +14,19 @@ from benchmarks import detect as detect_benchmark
 from sfb_video.config import load_config
 from sfb_video.evaluation.objects import box_iou
 from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.geometry.prototypes import load_prototype
+from sfb_video.model.motion import Motion
+from sfb_video.model.scene import ObjectState
+from sfb_video.results import FrameResult
 from sfb_video.run_folder import saved_frames
 from sfb_video.stages.background import running_median
-from sfb_video.stages.track import short_tracks_dropped, track_and_fit, with_neighbours
+from sfb_video.stages.detect import frame_blobs
+from sfb_video.stages.fit import continued
+from sfb_video.stages.track import Tracker, follow, predict, short_tracks_dropped, track_and_fit, with_neighbours
 from sfb_video.stages.types import Frame, FrameStatus, FrameWithBackground
 from sfb_video.synth import generate_clip
+
+CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
 
 
 def _frames(count: int) -> list[FrameWithBackground]:
@@ -95,3 +104,39 @@ def test_tracks_too_short_to_be_objects_are_dropped_unless_none_is_longer() -> N
     short = [fitted(0, 0), fitted(1, 1), fitted(2, 1)]
     assert [s.status for s in short_tracks_dropped(short, 3)] == ["dropped", "fitted", "fitted"]
     assert short_tracks_dropped(short, 1) == short
+
+
+def _fitted(index: int, x0: tuple[float, float, float], dx: tuple[float, float, float]) -> FrameResult:
+    vertices, topology = load_prototype("sphere")
+    motion = Motion(torch.tensor(x0), torch.tensor(dx), torch.eye(3), torch.zeros(3))
+    state = ObjectState(vertices, topology, torch.full((3, 8, 8), 0.5), motion)
+    box = (0, 0, 8, 8)
+    return FrameResult(index, box, box, CAMERA, state, "cold", "sphere", {"image": 0.1}, [], 1.0)
+
+
+def test_a_track_goes_on_where_its_streak_moved_on_though_its_fits_lag_on_speed() -> None:
+    # A falling object gathers speed, and one frame's fit is unsure of its speed: each streak here
+    # is fitted as 0.1 units long, while the object came 1.5 units down from one frame to the next.
+    # Its 3D motion continued lands short, beside another object; the image's pace lands on it.
+    config = load_config("fast")
+    tracker = Tracker(CAMERA, config)
+    tracker.earlier, tracker.previous = (
+        _fitted(0, (0.0, -2.0, 8.0), (0.0, 0.1, 0.0)),
+        _fitted(1, (0.0, -0.5, 8.0), (0.0, 0.1, 0.0)),
+    )
+    tracker.length, tracker.number = 2, 0
+    continued_3d = predict(continued(tracker.previous, tracker.earlier, 2, config.video.exposure_fraction), CAMERA)
+    lagging, paced = continued_3d.centre, tracker._glided(2).centre
+    assert paced[1] - lagging[1] > continued_3d.diameter  # the two guesses are apart
+    moving = np.zeros((CAMERA.height, CAMERA.width), bool)
+    yy, xx = np.mgrid[: CAMERA.height, : CAMERA.width]
+    radius = 0.4 * continued_3d.diameter
+    own, other = (paced[0], paced[1]), (lagging[0] + 0.2 * radius, lagging[1] - 0.2 * radius)
+    for cx, cy in (own, other):
+        moving |= (xx - cx) ** 2 + (yy - cy) ** 2 <= radius**2
+    found = frame_blobs(torch.from_numpy(moving), config.detect)
+    followed = follow(found, tracker.predictions(2), config)
+    assert followed is not None
+    (label, _), _, _ = followed
+    x, y = found.centroids[label]
+    assert math.hypot(x - own[0], y - own[1]) < 1.5, (x, y, own, other)
