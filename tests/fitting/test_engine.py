@@ -30,20 +30,28 @@ RECORDED = json.loads((Path(__file__).with_name("engine_curves.json")).read_text
 # 32), and again when the crop's object region grew into the streak's faint parts and the
 # trial's shape was fitted rigid (issue 32, the next session), and when the footprint was unswept
 # along the path's arc, and on an AMD EPYC (AVX2) when CI moved to such machines: the window's
-# race drifts from one CPU kind to another (up to 1e-2 by its fifth step from the earlier machines'
-# recording), the frame fits do not. The tolerance only allows for
+# race drifts from one CPU kind to another (up to 1e-2 by its fifth step, see DRIFT), the frame
+# fits do not. The tolerance only allows for
 # another CPU's float rounding: a changed step order, stop rule or loss changes them in the
 # first decimals.
 REL = 1e-5
+DRIFT = 2e-2
+"""The window race's tolerance from its third step on: on an Intel Xeon its curve left the EPYC's
+recording by 2e-4 at step 2 and 1e-2 at step 4 (its first two steps within 1e-5, its trials,
+shapes, prototype and final loss within REL)."""
 
 
-def _same_curves(got: dict[str, list[dict[str, float]]], want: dict[str, list[dict[str, float]]]) -> None:
+def _same_curves(
+    got: dict[str, list[dict[str, float]]], want: dict[str, list[dict[str, float]]], drift_from: int | None = None
+) -> None:
+    """The curves equal within REL (from step ``drift_from`` on, within DRIFT)."""
     assert set(got) == set(want)
     for name in want:
         assert len(got[name]) == len(want[name]), name
-        for a, b in zip(got[name], want[name], strict=True):
+        for step, (a, b) in enumerate(zip(got[name], want[name], strict=True)):
             assert a.keys() == b.keys()
-            assert list(a.values()) == pytest.approx(list(b.values()), rel=REL, abs=1e-9)
+            rel = DRIFT if drift_from is not None and step >= drift_from else REL
+            assert list(a.values()) == pytest.approx(list(b.values()), rel=rel, abs=1e-9), (name, step)
 
 
 def test_a_cold_race_and_a_warm_start_give_the_recorded_losses() -> None:
@@ -86,7 +94,7 @@ def test_a_window_race_with_a_shape_trial_and_a_searched_spin_gives_the_recorded
         seeds.append(Seed(truth.index, ObjectState(vertices, topology, grey, motion), "sphere", 0.1))
     result = fit_window(frames, seeds, clip.camera, config.fit, config.joint, config.render, 0.4, ("capsule", "box"))
     want = RECORDED["window"]
-    _same_curves({"kept": result.curve}, {"kept": want["curve"]})
+    _same_curves({"kept": result.curve}, {"kept": want["curve"]}, drift_from=2)
     assert result.trials == pytest.approx(want["trials"], rel=REL)
     assert list(result.trials) == list(want["trials"])  # none: the trial's shape starts the window alone
     assert result.shapes == pytest.approx(want["shapes"], rel=REL)
