@@ -61,12 +61,13 @@ def check_finite(x: torch.Tensor, name: str, error: type[SfbError] = SfbError) -
         raise error(f"{name} contains NaN or infinite values")
 
 
-def check_faces(faces: torch.Tensor, num_vertices: int) -> None:
-    """Check that ``faces`` (F, 3) is an integer tensor indexing ``num_vertices`` vertices."""
+def check_faces(faces: torch.Tensor, num_vertices: int | None) -> None:
+    """Check that ``faces`` (F, 3) is an integer tensor indexing ``num_vertices`` vertices (any
+    number of them: None)."""
     check_shape(faces, (None, 3), "faces")
     if faces.dtype not in (torch.int32, torch.int64):
         raise MeshError(f"faces must be an integer tensor, got {faces.dtype}")
-    if faces.numel() and (int(faces.min()) < 0 or int(faces.max()) >= num_vertices):
+    if num_vertices is not None and faces.numel() and (int(faces.min()) < 0 or int(faces.max()) >= num_vertices):
         raise MeshError(
             f"faces index vertices out of range: indices span [{int(faces.min())}, "
             f"{int(faces.max())}] but the mesh has {num_vertices} vertices"

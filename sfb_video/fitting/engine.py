@@ -10,6 +10,7 @@ every candidate for a trial's share of the steps and lets the leader go on.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -57,6 +58,15 @@ class Snapshot:
     states: tuple[dict[str, torch.Tensor], ...]
     record: dict[str, float]
     kept: Any
+
+
+def read_terms(terms: dict[str, torch.Tensor]) -> dict[str, float]:
+    """``terms``' () tensors as floats, read from the device at once: one host sync a step, not
+    one a term (each ``float()`` of a GPU tensor waits for the device)."""
+    if not terms:
+        return {}
+    values = torch.stack([v.detach().reshape(()).to(torch.float64) for v in terms.values()]).tolist()
+    return dict(zip(terms, values, strict=True))
 
 
 def weighted_sum(terms: dict[str, torch.Tensor], weights: dict[str, float]) -> torch.Tensor:
@@ -115,10 +125,10 @@ class Optimisation:
                 # circle_fast.avi): the candidate has diverged, as on a NaN.
                 self.done = True
                 return
-            if not torch.isfinite(step.total):
+            record = step.record
+            if not math.isfinite(record["total"]):  # the record holds the total, read already
                 self.done = True
                 return
-            record = step.record
             self.curve.append(record)
             if on_step is not None:
                 on_step(self.step, record)

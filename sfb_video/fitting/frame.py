@@ -23,6 +23,7 @@ from sfb_video.fitting.engine import (
     StepCallback,
     deterministic,
     race,
+    read_terms,
     seed_texture,
     seeded,
     weighted_sum,
@@ -134,8 +135,7 @@ class FrameObjective:
         }
         weights = data_weights | {"texture": config.w_texture, "laplacian": config.w_laplacian}
         total = weighted_sum(terms, weights)
-        record = {k: float(v.detach()) for k, v in terms.items()}
-        record["total"] = float(total.detach())
+        record = read_terms(terms | {"total": total})
         return Step(total, record, rendered.detach())
 
 

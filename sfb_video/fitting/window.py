@@ -56,6 +56,7 @@ from sfb_video.fitting.engine import (
     StepCallback,
     deterministic,
     race,
+    read_terms,
     seed_texture,
     seeded,
     weighted_sum,
@@ -177,27 +178,29 @@ class WindowObjective:
         window, shape, config = self.window, self.shape, self.window.fit_config
         rotations, positions = self.path(window.frame_times, window.taus)
         vertices, texture = shape.vertices(), shape.texture()
-        per_frame: dict[int, dict[str, float]] = {}
+        terms_by_frame: list[dict[str, torch.Tensor]] = []
         frame_total = torch.zeros((), device=window.taus.device)
         for k, frame in enumerate(window.frames):
             posed = pose_vertices(vertices, rotations[k], positions[k])
             rendered, alpha = window.renderers[k].blurred(posed, shape.topology, texture, frame.crop.background)
             terms, weights = frame_terms(frame.crop, frame.masks, rendered, alpha, config, progress)
             frame_total = frame_total + weighted_sum(terms, weights)
-            per_frame[frame.index] = {name: float(v.detach()) for name, v in terms.items()}
+            terms_by_frame.append(terms)
         texture_tv = losses.texture_tv(texture)
         laplacian = losses.laplacian(vertices if self.rest is None else vertices - self.rest, shape.topology.edges)
         # The shape's freedom grows over the fit: held to its start while the path and texture
         # settle, free enough at the end for corners and thin parts to form.
         w_laplacian = config.w_laplacian * window.config.laplacian_end**progress
         total = frame_total / len(window.frames) + config.w_texture * texture_tv + w_laplacian * laplacian
-        record = {
-            "image": statistics.fmean(r["image"] for r in per_frame.values()),
-            "texture": float(texture_tv.detach()),
-            "laplacian": float(laplacian.detach()),
-            "exposure": float(self.path.exposure().detach()),
-            "total": float(total.detach()),
+        shared = {"texture": texture_tv, "laplacian": laplacian, "exposure": self.path.exposure(), "total": total}
+        # Every frame's terms and the window's read from the device at once: one host sync a step.
+        each = {f"{k}/{name}": v for k, terms in enumerate(terms_by_frame) for name, v in terms.items()}
+        read = read_terms(each | shared)
+        per_frame = {
+            frame.index: {name: read[f"{k}/{name}"] for name in terms}
+            for k, (frame, terms) in enumerate(zip(window.frames, terms_by_frame, strict=True))
         }
+        record = {"image": statistics.fmean(r["image"] for r in per_frame.values())} | {k: read[k] for k in shared}
         return Step(total, record, per_frame)
 
 

@@ -11,6 +11,7 @@ Convention:
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import torch
@@ -89,8 +90,25 @@ class MeshTopology:
         """(F, 3, 2) texture coordinates of each face corner."""
         return self.uvs[self.face_uvs]
 
+    @functools.cached_property
+    def vertex_span(self) -> tuple[int, int]:
+        """The lowest and highest vertex index of ``faces`` ((0, -1) without faces), checked once:
+        the faces never change, and reading them off a GPU each render would wait for it.
+
+        Raises:
+            MeshError: faces not an (F, 3) integer tensor.
+        """
+        check_faces(self.faces, None)
+        if not self.faces.numel():
+            return 0, -1
+        low, high = torch.stack([self.faces.min(), self.faces.max()]).tolist()
+        return int(low), int(high)
+
     def to(self, device: torch.device | str) -> MeshTopology:
-        return MeshTopology(*(getattr(self, f).to(device) for f in self.__dataclass_fields__))
+        moved = MeshTopology(*(getattr(self, f).to(device) for f in self.__dataclass_fields__))
+        if "vertex_span" in self.__dict__:
+            moved.__dict__["vertex_span"] = self.vertex_span
+        return moved
 
 
 def check_vertices(vertices: torch.Tensor, topology: MeshTopology) -> None:
@@ -98,7 +116,12 @@ def check_vertices(vertices: torch.Tensor, topology: MeshTopology) -> None:
     if vertices.dim() < 2 or vertices.shape[-1] != 3:
         raise MeshError(f"vertices must have shape (*, V, 3), got {tuple(vertices.shape)}")
     check_finite(vertices, "mesh vertices", MeshError)
-    check_faces(topology.faces, vertices.shape[-2])
+    low, high = topology.vertex_span
+    if low < 0 or high >= vertices.shape[-2]:
+        raise MeshError(
+            f"faces index vertices out of range: indices span [{low}, {high}] but the mesh has "
+            f"{vertices.shape[-2]} vertices"
+        )
 
 
 def normalize_vertices(vertices: torch.Tensor) -> torch.Tensor:

@@ -13,7 +13,7 @@ import torch
 from sfb_video.config import load_config
 from sfb_video.errors import DivergenceError, PoseError
 from sfb_video.evaluation.synthetic import synthetic_crop
-from sfb_video.fitting.engine import Optimisation, Step, race, seeded
+from sfb_video.fitting.engine import Optimisation, Step, race, read_terms, seeded
 from sfb_video.fitting.frame import WarmStart, fit_frame
 from sfb_video.fitting.path import Seed
 from sfb_video.fitting.window import fit_window
@@ -165,3 +165,11 @@ def test_a_seeded_fit_leaves_the_callers_random_state_as_it_was() -> None:
     assert torch.equal(torch.rand(3), expected)
     with seeded(0):
         assert torch.equal(torch.rand(3), inside)
+
+
+def test_the_loss_terms_are_read_at_once_as_each_alone_would_be() -> None:
+    terms = {"image": torch.tensor(0.1234567), "total": torch.tensor(3.0, dtype=torch.float64), "x": torch.ones(1)}
+    read = read_terms(terms)
+    assert list(read) == ["image", "total", "x"]
+    assert list(read.values()) == [float(v) for v in terms.values()]  # bit for bit, float32 widened
+    assert read_terms({}) == {}
