@@ -61,16 +61,28 @@ def check_finite(x: torch.Tensor, name: str, error: type[SfbError] = SfbError) -
         raise error(f"{name} contains NaN or infinite values")
 
 
-def check_faces(faces: torch.Tensor, num_vertices: int | None) -> None:
+def check_faces(faces: torch.Tensor, num_vertices: int | None) -> tuple[int, int]:
     """Check that ``faces`` (F, 3) is an integer tensor indexing ``num_vertices`` vertices (any
-    number of them: None)."""
+    number of them: None).
+
+    Returns:
+        the lowest and highest index (0, -1 without faces), read from the device at once.
+    """
     check_shape(faces, (None, 3), "faces")
     if faces.dtype not in (torch.int32, torch.int64):
         raise MeshError(f"faces must be an integer tensor, got {faces.dtype}")
-    if num_vertices is not None and faces.numel() and (int(faces.min()) < 0 or int(faces.max()) >= num_vertices):
+    low, high = (0, -1) if not faces.numel() else torch.stack([faces.min(), faces.max()]).tolist()
+    if num_vertices is not None:
+        check_face_span((low, high), num_vertices)
+    return low, high
+
+
+def check_face_span(span: tuple[int, int], num_vertices: int) -> None:
+    """Check that faces whose indices span ``span`` (lowest, highest) index ``num_vertices`` vertices."""
+    low, high = span
+    if low < 0 or high >= num_vertices:
         raise MeshError(
-            f"faces index vertices out of range: indices span [{int(faces.min())}, "
-            f"{int(faces.max())}] but the mesh has {num_vertices} vertices"
+            f"faces index vertices out of range: indices span [{low}, {high}] but the mesh has {num_vertices} vertices"
         )
 
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import torch
 
-from sfb_video.errors import MeshError, check_faces, check_finite, check_shape
+from sfb_video.errors import MeshError, check_face_span, check_faces, check_finite, check_shape
 
 
 @dataclass(frozen=True)
@@ -98,11 +98,7 @@ class MeshTopology:
         Raises:
             MeshError: faces not an (F, 3) integer tensor.
         """
-        check_faces(self.faces, None)
-        if not self.faces.numel():
-            return 0, -1
-        low, high = torch.stack([self.faces.min(), self.faces.max()]).tolist()
-        return int(low), int(high)
+        return check_faces(self.faces, None)
 
     def to(self, device: torch.device | str) -> MeshTopology:
         moved = MeshTopology(*(getattr(self, f).to(device) for f in self.__dataclass_fields__))
@@ -116,12 +112,7 @@ def check_vertices(vertices: torch.Tensor, topology: MeshTopology) -> None:
     if vertices.dim() < 2 or vertices.shape[-1] != 3:
         raise MeshError(f"vertices must have shape (*, V, 3), got {tuple(vertices.shape)}")
     check_finite(vertices, "mesh vertices", MeshError)
-    low, high = topology.vertex_span
-    if low < 0 or high >= vertices.shape[-2]:
-        raise MeshError(
-            f"faces index vertices out of range: indices span [{low}, {high}] but the mesh has "
-            f"{vertices.shape[-2]} vertices"
-        )
+    check_face_span(topology.vertex_span, vertices.shape[-2])
 
 
 def normalize_vertices(vertices: torch.Tensor) -> torch.Tensor:
