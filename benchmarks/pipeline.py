@@ -32,6 +32,9 @@ from sfb_video.video import VideoWriter
 
 FRAMES = 30
 STAGES = ("read", "register", "background", "detect", "fit", "joint", "export", "recording")
+JOINT = ("path", "shape trial", "spin search", "steps", "refine")
+"""The joint fit's parts (:mod:`sfb_video.fitting.window`), shown under it; "joint" alone is the
+rest of it (crops, scoring the windows, saving)."""
 _COMMON = {"width": 640, "height": 480, "num_frames": FRAMES, "exposure_fraction": 0.8, "speed_range": (1.2, 1.5)}
 
 
@@ -104,7 +107,10 @@ def main() -> None:
     print("| stage | seconds | share | s / frame |")
     print("|---|---:|---:|---:|")
     other = total - sum(stages.values())
-    for name, seconds in [*((s, stages.get(s, 0.0)) for s in STAGES), ("other (probe, run folder, saving)", other)]:
+    rows = [(s, stages.get(s, 0.0)) for s in STAGES]
+    at = STAGES.index("joint") + 1
+    rows[at:at] = [(f"joint: {p}", stages.get(f"joint: {p}", 0.0)) for p in JOINT]
+    for name, seconds in [*rows, ("other (probe, run folder, saving)", other)]:
         print(f"| {name} | {seconds:.1f} | {seconds / total:.0%} | {seconds / FRAMES:.2f} |")
     print(f"| **all** | {total:.1f} | 100% | {total / FRAMES:.2f} |")
     print(f"\n{FRAMES / total:.2f} frames per second overall")

@@ -240,6 +240,8 @@ class JointConfig(_Checked):
     """Frames a window shares with the previous one of its track."""
     iterations: int = bounded(300, ge=1)
     """Adam steps of a window's joint fit."""
+    frames_per_step: int = bounded(3, ge=0)
+    """Frames of the window each step renders, in turn (every frame seen every few steps); 0: all."""
     path_steps: int = bounded(300, ge=0)
     """Steps fitting the trajectory to the seeds' streak ends before the joint fit (no rendering)."""
     motion: str = one_of("auto", ("auto", "constant_velocity", "constant_acceleration", "bounce"))

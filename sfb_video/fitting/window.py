@@ -77,6 +77,7 @@ from sfb_video.model.scene import ObjectState
 from sfb_video.model.shape import ShapeParams
 from sfb_video.model.trajectory import Trajectory, TrajectoryParams
 from sfb_video.render import MeshRenderer
+from sfb_video.timing import stage, timed
 
 SHAPE_PRUNE = 1.5
 """A shape of the trial whose residual at the seeds' spins is this many times the best one's is
@@ -166,40 +167,57 @@ class JointResult:
 class WindowObjective:
     """The joint loss of one candidate: the mean over the window's frames of their weighted data
     terms (each in its crop, as the single-frame fit weighs them), plus L_T and L_L once; a step
-    keeps each frame's terms for the snapshot."""
+    keeps each frame's terms for the snapshot.
+
+    With ``joint.frames_per_step`` set, a step renders only that many of the frames, in turn, so
+    that every frame is seen every few steps (the first step renders them all). The step's L_I,
+    which the snapshot and the race compare, is then the mean of every frame's latest L_I: a
+    subset's own mean would rank the steps by which frames they drew."""
 
     def __init__(
         self, window: WindowStart, shape: ShapeParams, path: TrajectoryParams, rest: torch.Tensor | None = None
     ) -> None:
         self.window, self.shape, self.path, self.rest = window, shape, path, rest
         self.modules = (shape, path)
+        self.steps = 0
+        self.latest: dict[int, dict[str, float]] = {}
+
+    def drawn(self) -> list[int]:
+        """The positions in the window of the frames this step renders."""
+        count, each = len(self.window.frames), self.window.config.frames_per_step
+        if self.steps == 0 or each == 0 or each >= count:
+            return list(range(count))
+        start = ((self.steps - 1) * each) % count
+        return sorted((start + j) % count for j in range(each))
 
     def __call__(self, progress: float) -> Step:
         window, shape, config = self.window, self.shape, self.window.fit_config
         rotations, positions = self.path(window.frame_times, window.taus)
         vertices, texture = shape.vertices(), shape.texture()
-        terms_by_frame: list[dict[str, torch.Tensor]] = []
+        drawn = self.drawn()
+        self.steps += 1
+        terms_by_frame: dict[int, dict[str, torch.Tensor]] = {}
         frame_total = torch.zeros((), device=window.taus.device)
-        for k, frame in enumerate(window.frames):
+        for k in drawn:
+            frame = window.frames[k]
             posed = pose_vertices(vertices, rotations[k], positions[k])
             rendered, alpha = window.renderers[k].blurred(posed, shape.topology, texture, frame.crop.background)
             terms, weights = frame_terms(frame.crop, frame.masks, rendered, alpha, config, progress)
             frame_total = frame_total + weighted_sum(terms, weights)
-            terms_by_frame.append(terms)
+            terms_by_frame[k] = terms
         texture_tv = losses.texture_tv(texture)
         laplacian = losses.laplacian(vertices if self.rest is None else vertices - self.rest, shape.topology.edges)
         # The shape's freedom grows over the fit: held to its start while the path and texture
         # settle, free enough at the end for corners and thin parts to form.
         w_laplacian = config.w_laplacian * window.config.laplacian_end**progress
-        total = frame_total / len(window.frames) + config.w_texture * texture_tv + w_laplacian * laplacian
+        total = frame_total / len(drawn) + config.w_texture * texture_tv + w_laplacian * laplacian
         shared = {"texture": texture_tv, "laplacian": laplacian, "exposure": self.path.exposure(), "total": total}
         # Every frame's terms and the window's read from the device at once: one host sync a step.
-        each = {f"{k}/{name}": v for k, terms in enumerate(terms_by_frame) for name, v in terms.items()}
+        each = {f"{k}/{name}": v for k, terms in terms_by_frame.items() for name, v in terms.items()}
         read = read_terms(each | shared)
-        per_frame = {
-            frame.index: {name: read[f"{k}/{name}"] for name in terms}
-            for k, (frame, terms) in enumerate(zip(window.frames, terms_by_frame, strict=True))
-        }
+        for k, terms in terms_by_frame.items():
+            self.latest[window.frames[k].index] = {name: read[f"{k}/{name}"] for name in terms}
+        per_frame = {f.index: self.latest[f.index] for f in window.frames}
         record = {"image": statistics.fmean(r["image"] for r in per_frame.values())} | {k: read[k] for k in shared}
         return Step(total, record, per_frame)
 
@@ -521,7 +539,8 @@ def fit_window(
             non-finite from its first step.
     """
     started = time.perf_counter()
-    window = start_window(frames, seeds, camera, fit_config, config, render_config, exposure_fraction, shape_from)
+    with stage("joint: path"):
+        window = start_window(frames, seeds, camera, fit_config, config, render_config, exposure_fraction, shape_from)
     searching = shape_from is None and bool(config.spin_magnitudes) and fit_config.max_rotation_deg > 0
     shapes: dict[str, float] = {}
     with seeded(fit_config.seed), deterministic(window.device):
@@ -532,20 +551,24 @@ def fit_window(
             # The shapes the streaks choose start the fit without the seeds' mesh: against it,
             # fitted for hundreds of steps to each frame, no fresh start wins a short race
             # (measured on `synthetic`: the seeds won every one, a box staying a torus).
-            contenders, shapes = trial_shapes(window, prototypes, render_config)
+            with stage("joint: shape trial"):
+                contenders, shapes = trial_shapes(window, prototypes, render_config)
             fits = {}
             for start, spin in contenders:
                 if searching:
-                    spin = searched_spin(window, start, render_config, around=spin)
+                    with stage("joint: spin search"):
+                        spin = searched_spin(window, start, render_config, around=spin)
                 fits[f"shape:{start.name}"] = window_candidate(window, start, spin, rigid=True)
         else:
             fits = {f"seed:{window.best_seed.prototype}": window_candidate(window, None)}
             if searching:
                 start = seed_prototype(window)
-                spin = searched_spin(window, start, render_config)
+                with stage("joint: spin search"):
+                    spin = searched_spin(window, start, render_config)
                 fits[f"spin:{start.name}"] = window_candidate(window, start, spin)
         trial = max(1, round(config.trial_fraction * config.iterations)) if len(fits) > 1 else None
-        key, trials = race(fits, trial, on_step)
+        with stage("joint: steps"):
+            key, trials = race(fits, trial, on_step)
     fit = fits[key]
     best = fit.restore()
     shape, path = fit.objective.modules
@@ -567,6 +590,7 @@ def fit_window(
     )
 
 
+@timed("joint: refine")
 def refine_frames(
     result: JointResult,
     frames: list[WindowFrame],

@@ -14,7 +14,14 @@ from sfb_video.config import load_config
 from sfb_video.evaluation.synthetic import score_state
 from sfb_video.fitting.frame import FitResult, fit_frame
 from sfb_video.fitting.path import Seed, measured_exposure
-from sfb_video.fitting.window import JointResult, WindowFrame, fit_window, refine_frames
+from sfb_video.fitting.window import (
+    JointResult,
+    WindowFrame,
+    fit_window,
+    refine_frames,
+    start_window,
+    window_candidate,
+)
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
@@ -185,3 +192,32 @@ def test_a_path_start_extrapolated_towards_the_camera_stays_in_front_of_it(clip:
     for index in (0, 1):
         motion = result.state(index).motion
         assert bool(torch.isfinite(motion.x0).all()) and float(motion.x0[2]) > 0
+
+
+def test_a_step_on_a_subset_of_frames_sees_every_frame_in_turn(clip: SyntheticClip) -> None:
+    config = dataclasses.replace(CONFIG.joint, frames_per_step=2)
+    seeds = _seeds(clip, [1.0] * 4)
+    window = start_window(_frames(clip), seeds, clip.camera, CONFIG.fit, config, CONFIG.render, 0.7)
+    objective = window_candidate(window, None).objective
+    drawn, steps = [], []
+    for _ in range(4):
+        drawn.append(objective.drawn())
+        steps.append(objective(0.0))
+        with torch.no_grad():  # as an optimiser's step would: every frame drawn next changes
+            for parameter in objective.shape.parameters():
+                parameter.add_(0.05)
+    assert drawn == [[0, 1, 2, 3], [0, 1], [2, 3], [0, 1]]
+    # A frame not drawn keeps the terms it had when it was last drawn; the step's L_I is the
+    # mean over every frame, not over the two it drew.
+    assert steps[1].kept[2] == steps[0].kept[2] and steps[1].kept[0] != steps[0].kept[0]
+    assert steps[2].record["image"] == pytest.approx(np.mean([steps[2].kept[i]["image"] for i in range(4)]))
+
+
+def test_a_fit_on_a_subset_of_frames_per_step_still_finds_one_path(clip: SyntheticClip) -> None:
+    config = dataclasses.replace(CONFIG.joint, frames_per_step=2)
+    seeds = _seeds(clip, [0.75, 1.3, 0.8, 1.25])
+    result = fit_window(_frames(clip), seeds, clip.camera, CONFIG.fit, config, CONFIG.render, 0.4)
+    before = _score(clip, [s.state for s in seeds])
+    after = _score(clip, [result.state(i) for i in range(4)])
+    assert abs(result.trajectory.exposure_fraction - TRUE_EXPOSURE) < 0.1
+    assert np.mean(after) < 0.7 * np.mean(before)
