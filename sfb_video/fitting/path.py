@@ -4,6 +4,7 @@ path, or a bounce)."""
 
 from __future__ import annotations
 
+import math
 import statistics
 from dataclasses import dataclass
 
@@ -48,6 +49,12 @@ def _streak_ends(seeds: list[Seed], first: int, exposure: float) -> tuple[torch.
     return t[order], torch.stack(points).float()[order]
 
 
+PATH_CHECK = 25
+"""The path's fit reads its loss every this many steps, and stops where it changed by less than
+:data:`PATH_TOLERANCE` (relative) since the last read."""
+PATH_TOLERANCE = 1e-3
+
+
 def fit_path(params: TrajectoryParams, seeds: list[Seed], first: int, exposure: float, steps: int) -> torch.Tensor:
     """Fit the anchors to the seeds' streak ends in the image (no rendering): in pixels (in
     units of the reference diameter), and loosely in apparent size, which sets depth but which
@@ -65,12 +72,21 @@ def fit_path(params: TrajectoryParams, seeds: list[Seed], first: int, exposure: 
     start_depth = torch.exp(_interp(params.times, t, torch.log(depth)))
     params.load_anchors(params.camera.unproject(start_uv, start_depth))
     optimiser = torch.optim.Adam([params.anchors_raw], lr=0.05)
-    for _ in range(steps):
+    last = math.inf
+    for step in range(steps):
         optimiser.zero_grad(set_to_none=True)
         path = interpolate(params.anchors(), params.breaks, params.degree, t)
         p_uv, p_depth = params.camera.project(path)
         loss = ((p_uv - uv) / params.ref_px).square().sum(-1).mean()
         loss = loss + 0.25 * (torch.log(params.camera.fy / p_depth) - log_size).square().mean()
+        if step % PATH_CHECK == 0:
+            # Read every few steps (a read waits for the device); stop once the loss has settled.
+            # Settled, not merely risen: from a start near the truth Adam's first steps overshoot
+            # and the loss climbs before it falls below where it began.
+            now = float(loss.detach())
+            if abs(last - now) < PATH_TOLERANCE * now:
+                break
+            last = now
         loss.backward()
         optimiser.step()
     with torch.no_grad():
