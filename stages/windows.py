@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from pathlib import Path
 
 import torch
@@ -149,19 +149,22 @@ def fit_track_window(
     previous: SavedWindow | None,
     camera: PinholeCamera,
     config: Config,
+    shown: Collection[int] | None = None,
 ) -> SavedWindow:
     """Fit one window of a track jointly.
 
     Its seeds are its predecessor's poses on the frames they share and the single-frame fits
     elsewhere; the predecessor's shape starts the fit, and only a track's first window (no
-    predecessor) runs the shape trial of ``joint.prototypes``; then each frame is refined from
-    the joint fit (``joint.refine``).
+    predecessor) runs the shape trial of ``joint.prototypes``; then each frame the window stands
+    for is refined from the joint fit (``joint.refine``), and the window is accepted on those.
 
     Args:
         track: the track's number; members: the window's frame indices, consecutive.
         crops: each member's crop (and sub-frame masks).
         single: frame index -> its single-frame fit.
         previous: the track's previous window, or None.
+        shown: the members whose outputs come from this window (:func:`frame_windows`); None:
+            every member. The others are shown from a neighbour, so refining them is wasted.
     """
     seeds, shape_from, before = [], None, {}
     for index in members:
@@ -185,13 +188,14 @@ def fit_track_window(
         prototypes=() if previous is not None else config.joint.prototypes,
         shape_from=shape_from,
     )
+    shown = [i for i in members if shown is None or i in shown] or list(members)
     if config.joint.refine != "off":
-        frames = [crops[i] for i in members]
+        frames = [crops[i] for i in shown]
         result = refine_frames(result, frames, config.fit, config.render, pose=config.joint.refine == "pose")
     explained = {
-        i: (_quality(single(i).state, crops[i], config), _quality(result.state(i), crops[i], config)) for i in members
+        i: (_quality(single(i).state, crops[i], config), _quality(result.state(i), crops[i], config)) for i in shown
     }
-    drop = sum(b - a for b, a in explained.values()) / len(members)
+    drop = sum(b - a for b, a in explained.values()) / len(explained)
     return SavedWindow(track, result, before, explained, drop <= config.joint.max_explained_drop)
 
 
@@ -230,6 +234,7 @@ def fit_windows(
             done[window_key(window)] = load_window(path)
     pending = [w for w in windows if window_key(w) not in done]
     boxes = {(s.index, s.track): s.box for s in statuses if s.status == "fitted"}
+    owner = frame_windows(windows)
 
     def single(key: tuple[int, int]) -> FrameResult:
         return load_result(frame_path(folder, *key))
@@ -251,8 +256,9 @@ def fit_windows(
             previous = previous_window(windows, done, track, members[0])
             own = {i: crops[i, track] for i in members}
             try:
+                shown = [i for i in members if owner[i, track] == window_key((track, members))]
                 window = fit_track_window(
-                    track, members, own, lambda i, t=track: single((i, t)), previous, camera, config
+                    track, members, own, lambda i, t=track: single((i, t)), previous, camera, config, shown
                 )
             except DivergenceError as exc:
                 # Non-finite from the first step: the frames keep their single-frame fits.

@@ -313,6 +313,7 @@ def _joint_rows(
     tracks = {s.index: s.track for s in statuses}
     done: dict[tuple[int, int], SavedWindow] = {}
     seconds = {i: s for i, (_, _, s) in fitted.items()}
+    stands_for = frame_windows(windows)
     for track, members in windows:
         crops = {}
         for i in members:
@@ -322,7 +323,14 @@ def _joint_rows(
         started = time.perf_counter()
         try:
             done[members[0], track] = fit_track_window(
-                track, members, crops, lambda i: fitted[i][1], previous, camera, config
+                track,
+                members,
+                crops,
+                lambda i: fitted[i][1],
+                previous,
+                camera,
+                config,
+                [i for i in members if stands_for[i, track] == (members[0], track)],
             )
         except DivergenceError as exc:
             # Left out, as the pipeline leaves it out: its frames keep their single-frame fits.

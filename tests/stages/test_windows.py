@@ -174,3 +174,46 @@ def test_a_window_scores_its_single_frame_fits_on_its_crops_device(tmp_path: Pat
     saved = windows.fit_track_window(0, [0, 1], crops, single, None, camera, config)
     assert saved.accepted and len(seen) == 4
     assert all(devices == {"meta"} for devices in seen), seen
+
+
+def test_each_window_is_handed_the_frames_it_stands_for(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    # A frame two windows share is shown from one of them: only that one refines and judges it.
+    config = load_config("fast")
+    statuses = [FrameStatus(i, "fitted", (0, 0, 4, 4), track=0) for i in range(10)]
+    frames = [FrameWithBackground(i, torch.zeros(3, 8, 8), torch.zeros(3, 8, 8)) for i in range(10)]
+    monkeypatch.setattr(windows, "load_result", lambda path: None)
+    monkeypatch.setattr(windows, "window_frame", lambda *args: None)
+    monkeypatch.setattr(windows, "save_window", lambda *args: None)
+    handed: dict[int, list[int]] = {}
+
+    def fit(track: int, members: list[int], *args: object) -> object:
+        handed[members[0]] = list(args[-1])  # type: ignore[call-overload]
+        return type("Saved", (), {"accepted": True})()
+
+    monkeypatch.setattr(windows, "fit_track_window", fit)
+    windows.fit_windows(iter(frames), tmp_path, statuses, CAMERA, config, torch.device("cpu"))
+    assert handed == {0: [0, 1, 2, 3, 4], 4: [5, 6, 7, 8, 9]}
+
+
+def test_a_window_refines_and_is_judged_on_the_frames_it_is_shown_for(monkeypatch: pytest.MonkeyPatch) -> None:
+    vertices, topology = load_prototype("sphere")
+    motion = Motion(torch.tensor([0.0, 0.0, 5.0]), torch.tensor([0.5, 0.0, 0.0]), torch.eye(3), torch.zeros(3))
+    state = ObjectState(vertices, topology, torch.rand(3, 8, 8), motion)
+    single = type("Single", (), {"state": state, "prototype": "sphere", "losses": {"image": 0.1}})()
+
+    class Joint:  # what fit_track_window reads of a window's joint fit
+        def state(self, index: int) -> ObjectState:
+            return state
+
+    refined: list[int] = []
+
+    def refine(result: Joint, frames: list[object], *args: object, **kwargs: object) -> Joint:
+        refined.extend(frames)  # type: ignore[arg-type]
+        return result
+
+    monkeypatch.setattr(windows, "fit_window", lambda *args, **kwargs: Joint())
+    monkeypatch.setattr(windows, "refine_frames", refine)
+    monkeypatch.setattr(windows, "_quality", lambda *args: 0.5)
+    crops = {i: i for i in range(3)}
+    saved = windows.fit_track_window(0, [0, 1, 2], crops, lambda i: single, None, CAMERA, load_config("fast"), [1, 2])  # type: ignore[arg-type]
+    assert refined == [1, 2] and set(saved.explained) == {1, 2} and saved.accepted
