@@ -584,7 +584,7 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--web-port", type=int, default=9090, help="port of the web viewer's page (with --web)")
     replay.add_argument("--grpc-port", type=int, default=9876, help="port the recording streams from (with --web)")
     replay.add_argument(
-        "--bind", default="0.0.0.0", help="address to serve on (with --web; 127.0.0.1: this machine only)"
+        "--bind", default="127.0.0.1", help="address to serve on (with --web; 0.0.0.0: every address, the network too)"
     )
     replay.set_defaults(func=cmd_replay)
     return parser

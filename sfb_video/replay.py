@@ -5,7 +5,8 @@ The viewer is the one installed with this package's rerun-sdk: the binary in its
 package (so a virtual environment need not be activated), else a ``rerun`` on PATH. ``--web``
 runs ``rerun --serve-web``: an HTTP server for the viewer's page and a gRPC server that streams
 the recording to it, in a process group of its own that is stopped with this command, whatever
-stops it (Ctrl-C, SIGTERM).
+stops it (Ctrl-C, SIGTERM). Both listen on this machine only (127.0.0.1) unless ``--bind`` opens
+them to the network, and the address is printed once both answer.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 from urllib.parse import quote
 
@@ -27,6 +29,11 @@ WEB_PORT = 9090
 """Where the web viewer's page is served (rerun's default)."""
 GRPC_PORT = 9876
 """Where the recording is streamed to the page (rerun's default)."""
+LOCAL = "127.0.0.1"
+"""The default ``--bind``: this machine only. A run shows the clip and whatever it filmed."""
+EVERY_ADDRESS = ("0.0.0.0", "::")
+START_TIMEOUT_S = 60.0
+"""How long the viewer's servers may take to answer before the command gives up."""
 
 
 def recording_path(run: Path) -> Path:
@@ -79,6 +86,58 @@ def _check_port(port: int, bind: str, what: str) -> None:
             raise SfbError(f"port {port} ({what}) is in use; choose another with {what}") from None
 
 
+def _answers(host: str, port: int) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=1):
+            return True
+    except OSError:
+        return False
+
+
+def _wait_until_served(process: subprocess.Popen[str], host: str, ports: tuple[int, ...]) -> None:
+    """Return once every port answers on ``host``.
+
+    Raises:
+        SfbError: the viewer stopped first, or did not answer within :data:`START_TIMEOUT_S`.
+    """
+    deadline = time.monotonic() + START_TIMEOUT_S
+    waiting = list(ports)
+    while waiting:
+        if process.poll() is not None:
+            raise SfbError(f"the rerun web viewer stopped before it served: {_last_error(process.communicate()[1])}")
+        if time.monotonic() > deadline:
+            raise SfbError(f"the rerun web viewer did not answer on port {waiting[0]} within {START_TIMEOUT_S:.0f} s")
+        if _answers(host, waiting[0]):
+            waiting.pop(0)
+        else:
+            time.sleep(0.1)
+
+
+def _last_error(err: str) -> str:
+    lines = [line for line in err.splitlines() if "rror" in line] or err.splitlines()[-1:]
+    return lines[-1].strip() if lines else "no message"
+
+
+def served_message(path: Path, bind: str, web_port: int, grpc_port: int) -> str:
+    """What ``--web`` prints once the viewer answers: the address to open and who can open it."""
+    if bind in EVERY_ADDRESS:
+        name = socket.gethostname()
+        return (
+            f"serving {path} in rerun's web viewer on every address of this machine (--bind {bind}):\n"
+            f"  here, open {web_url('localhost', web_port, grpc_port)}\n"
+            f"  from another machine, {web_url(name, web_port, grpc_port)} (or its IP address for {name})\n"
+            "(Ctrl-C stops)"
+        )
+    if bind in (LOCAL, "localhost", "::1"):
+        return (
+            f"serving {path} in rerun's web viewer on this machine only ({bind}): "
+            f"open {web_url('localhost', web_port, grpc_port)}\n"
+            f"(--bind 0.0.0.0 opens it to the network, or forward ports {web_port} and {grpc_port}; Ctrl-C stops)"
+        )
+    url = web_url(bind, web_port, grpc_port)
+    return f"serving {path} in rerun's web viewer on {bind} only: open {url}\n(Ctrl-C stops)"
+
+
 def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
@@ -88,11 +147,12 @@ def web_url(host: str, web_port: int, grpc_port: int) -> str:
     return f"http://{host}:{web_port}/?url=" + quote(f"rerun+http://{host}:{grpc_port}/proxy", safe="")
 
 
-def replay(run: Path, *, web: bool, web_port: int = WEB_PORT, grpc_port: int = GRPC_PORT, bind: str = "0.0.0.0") -> int:
-    """Open the recording of ``run``; with ``web``, serve it until interrupted. Returns the exit status.
+def replay(run: Path, *, web: bool, web_port: int = WEB_PORT, grpc_port: int = GRPC_PORT, bind: str = LOCAL) -> int:
+    """Open the recording of ``run``; with ``web``, serve it on ``bind`` until interrupted.
+    Returns the exit status.
 
     Raises:
-        SfbError: no recording; no display and no ``web``; a port in use.
+        SfbError: no recording; no display and no ``web``; a port in use; the viewer failed.
     """
     path = recording_path(run)
     command = viewer_command()
@@ -105,20 +165,16 @@ def replay(run: Path, *, web: bool, web_port: int = WEB_PORT, grpc_port: int = G
         return subprocess.call([*command, str(path)])
     _check_port(web_port, bind, "--web-port")
     _check_port(grpc_port, bind, "--grpc-port")
-    host = "localhost" if bind in ("0.0.0.0", "::", "127.0.0.1") else bind
-    print(
-        f"serving {path} in rerun's web viewer: open {web_url(host, web_port, grpc_port)}\n"
-        f"(from another machine: use this machine's address, or forward ports {web_port} and {grpc_port}; "
-        "Ctrl-C stops)",
-        flush=True,
-    )
     server = [*command, "--serve-web", "--bind", bind, "--web-viewer-port", str(web_port), "--port", str(grpc_port)]
-    # The viewer's own log lines (telemetry, analytics notices) would bury the address above.
+    # The viewer's own log lines (telemetry, analytics notices) would bury the address we print.
     process = subprocess.Popen(
         [*server, str(path)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True
     )
     stop_on_sigterm = signal.signal(signal.SIGTERM, _interrupt)
     try:
+        # An address printed before its ports listen opens on "connection refused".
+        _wait_until_served(process, LOCAL if bind in EVERY_ADDRESS else bind, (grpc_port, web_port))
+        print(served_message(path, bind, web_port, grpc_port), flush=True)
         _, err = process.communicate()
     except KeyboardInterrupt:
         return 0
@@ -132,6 +188,5 @@ def replay(run: Path, *, web: bool, web_port: int = WEB_PORT, grpc_port: int = G
                 os.killpg(process.pid, signal.SIGKILL)
                 process.wait()
     if process.returncode != 0:
-        lines = [line for line in err.splitlines() if "ERROR" in line or "rror" in line] or err.splitlines()[-1:]
-        raise SfbError(f"the rerun web viewer stopped: {lines[-1].strip() if lines else process.returncode}")
+        raise SfbError(f"the rerun web viewer stopped: {_last_error(err)}")
     return 0

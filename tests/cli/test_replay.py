@@ -7,7 +7,6 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
-import time
 import urllib.request
 from pathlib import Path
 
@@ -28,7 +27,7 @@ READ_MESSAGES = "rerun.sdk_comms.v1alpha1.MessageProxyService/ReadMessages"
 def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     folder = tmp_path_factory.mktemp("run")
     camera = PinholeCamera.from_fov(32, 24, 45.0)
-    with Recorder(folder / "recording.rrd", camera, "a clip") as recorder:
+    with Recorder(folder / "recording.rrd", camera, "a clip", subframes=1) as recorder:
         recorder.log_frame(0, torch.rand(3, 24, 32), torch.rand(3, 24, 32))
     return folder
 
@@ -62,21 +61,49 @@ def test_no_recording_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert "no recording at" in capsys.readouterr().err
 
 
-def test_web_serves_the_viewer_and_streams_the_recording(run: Path) -> None:
+def _listening(port: int) -> set[str]:
+    """The local addresses a TCP socket listens on at ``port`` (Linux's /proc/net), in hex as
+    the kernel writes them: 0100007F is 127.0.0.1, 00000000 every address."""
+    found = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for line in Path(table).read_text().splitlines()[1:]:
+            local, state = line.split()[1], line.split()[3]
+            address, hex_port = local.split(":")
+            if state == "0A" and int(hex_port, 16) == port:  # 0A: LISTEN
+                found.add(address)
+    return found
+
+
+def _serve(run: Path, *options: str) -> tuple[subprocess.Popen[str], int, int, str]:
+    """Start ``replay --web`` and wait for the line it prints once served (its first)."""
     web, grpc = _free_port(), _free_port()
     command = [sys.executable, "-m", "sfb_video.cli", "replay", str(run), "--web"]
-    command += ["--web-port", str(web), "--grpc-port", str(grpc), "--bind", "127.0.0.1"]
+    command += ["--web-port", str(web), "--grpc-port", str(grpc), *options]
     server = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert server.stdout is not None
+    line = server.stdout.readline()
+    assert line, server.communicate(timeout=30)[1]
+    return server, web, grpc, line
+
+
+def _stop(server: subprocess.Popen[str], grpc: int) -> str:
+    server.terminate()  # SIGTERM, as a service manager or a shell's kill stops it
+    assert server.stdout is not None
+    out = server.stdout.read()  # through the file: _serve's readline left the rest in its buffer
+    server.communicate(timeout=30)
+    # The viewer's server stopped with the command: its port is free again.
+    with socket.socket() as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        probe.bind(("127.0.0.1", grpc))
+    return out
+
+
+def test_web_serves_the_viewer_on_this_machine_only_once_it_answers(run: Path) -> None:
+    server, web, grpc, line = _serve(run)
     try:
-        page = None
-        deadline = time.monotonic() + 60
-        while page is None and time.monotonic() < deadline:
-            try:
-                with urllib.request.urlopen(f"http://127.0.0.1:{web}/", timeout=2) as response:
-                    page = (response.status, response.headers.get("content-type"), response.read())
-            except OSError:
-                time.sleep(0.2)
-        assert page is not None, server.stderr.read() if server.poll() is not None else "no answer"
+        # The address is printed once both ports answer: open at once, the page is there.
+        with urllib.request.urlopen(f"http://127.0.0.1:{web}/", timeout=2) as response:
+            page = (response.status, response.headers.get("content-type"), response.read())
         assert page[0] == 200 and "text/html" in page[1] and b"<html" in page[2].lower()
         request = urllib.request.Request(
             f"http://127.0.0.1:{grpc}/{READ_MESSAGES}",
@@ -91,14 +118,25 @@ def test_web_serves_the_viewer_and_streams_the_recording(run: Path) -> None:
                     break
                 streamed += chunk
         assert APPLICATION_ID.encode() in streamed and b"world/camera" in streamed
+        if Path("/proc/net/tcp").is_file():
+            assert _listening(web) == _listening(grpc) == {"0100007F"}  # 127.0.0.1, not the network
     finally:
-        server.terminate()  # SIGTERM, as a service manager or a shell's kill stops it
-        out, _ = server.communicate(timeout=30)
-    assert f"http://localhost:{web}/?url=rerun%2Bhttp%3A%2F%2Flocalhost%3A{grpc}%2Fproxy" in out
-    # The viewer's server stopped with the command: its port is free again.
-    with socket.socket() as probe:
-        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        probe.bind(("127.0.0.1", grpc))
+        out = _stop(server, grpc)
+    assert f"http://localhost:{web}/?url=rerun%2Bhttp%3A%2F%2Flocalhost%3A{grpc}%2Fproxy" in line
+    assert "this machine only" in line and "another machine" not in line + out
+
+
+@pytest.mark.skipif(not Path("/proc/net/tcp").is_file(), reason="reads the listening sockets from Linux's /proc/net")
+def test_bind_opens_the_viewer_to_the_network_and_says_so(run: Path) -> None:
+    server, web, grpc, line = _serve(run, "--bind", "0.0.0.0")
+    try:
+        assert _listening(web) and _listening(grpc) and "0100007F" not in _listening(web) | _listening(grpc)
+        with urllib.request.urlopen(f"http://127.0.0.1:{web}/", timeout=2) as response:
+            assert response.status == 200
+    finally:
+        out = _stop(server, grpc)
+    assert "on every address of this machine (--bind 0.0.0.0)" in line
+    assert f"from another machine, http://{socket.gethostname()}:{web}/" in out
 
 
 def test_a_port_in_use_is_one_line(run: Path, capsys: pytest.CaptureFixture[str]) -> None:
