@@ -27,8 +27,9 @@ Entity layout (what each path holds):
     world/camera/image/subframe_mask  SegmentationImage, subframe timeline only: the sub-frame mask
                                    (DeFMO's; class 2 = "sub-frame mask") each fit used, in the
                                    fit's time order; only in runs with such masks.
-    masks                          TextLog: the masks each frame's fit used ("diff", or "defmo"
-                                   and whether DeFMO's order was kept or reversed).
+    run/masks, run/config, run/summary  static TextDocuments: the masks the fits used, per track
+                                   and frames ("diff", or "defmo" and whether DeFMO's order was
+                                   kept or reversed); the run's resolved config; its summary.json.
     world/track_XX/object          Mesh3D: track XX's fitted textured mesh in object coordinates
                                    (unit scale), and Transform3D (translation + mat3x3): its pose,
                                    object -> camera coordinates.
@@ -38,19 +39,28 @@ Entity layout (what each path holds):
     tsr                            the temporal super-resolution sub-frames (JPEG), one per
                                    sub-frame time step.
     losses/track_XX/<name>         Scalars: the final value of each loss of a frame's fit.
-    fit/track_XX/<name>            Scalars: each loss along the optimisation of a frame's fit.
+    fit/track_XX/<name>            Scalars, step timeline only: each loss along the optimisation
+                                   of each of the track's fits, one after another.
     quality/track_XX/explained     Scalars: how much of the frame's difference the fit explains.
+
+The layout the viewer opens on (:func:`layout`, sent with the recording as its blueprint): the
+input frame with its detection beside the super-resolved sub-frame, the 3D view framed on the
+objects' trajectories, and tabs: one per track (its losses and explained), the fits' curves on
+the step timeline, the reconstruction and background, the run's text. It opens on the subframe
+timeline, where every panel it shows has content.
 
 Timelines (all sequences):
 
-    frame      the frame index. Everything but ``tsr`` and the sub-frame poses is on it; at a
-               frame the object's transform is its pose at mid-exposure.
-    subframe   ``frame * n + k`` for sub-frame k of the n a fit renders: scrub it to play the
-               sub-frames. ``tsr`` and the pose at each sub-frame's mid-time live only here (so they
-               cannot shadow the frame-level pose); the mesh and the reconstruction are also
-               stamped at ``frame * n`` so that they show while scrubbing.
-    step       the optimisation step of ``fit/<name>``; those rows also carry ``frame``, so a
-               frame's curve can be picked out (steps restart at 0 for each frame).
+    frame      the frame index. Everything but ``tsr``, ``fit`` and the sub-frame poses is on it;
+               at a frame the object's transform is its pose at mid-exposure.
+    subframe   ``frame * n + k`` for sub-frame k of the n each frame has (``subframes``): scrub it
+               to play the sub-frames. ``tsr`` and the pose at each sub-frame's mid-time live
+               here, not on ``frame`` (so they cannot shadow the frame-level pose); everything
+               else logged per frame is also stamped at ``frame * n`` so that it shows while
+               scrubbing.
+    step       the optimisation steps of ``fit/track_XX/<name>``, counted on across the track's
+               fits (a frame's fit starts where the previous one ended), so that they read as
+               one curve after another, not as a pile of curves that all start at 0.
 
 Reading it back in Python: ``rerun.chunk.RrdReader(path).stream().to_chunks()`` gives chunks with
 ``entity_path`` (with a leading "/"), ``is_static``, ``timeline_names`` and ``to_record_batch()``,
@@ -65,6 +75,7 @@ pixels (x, y, w, h) spans [x, x + w] x [y, y + h].
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import tempfile
 import threading
@@ -74,7 +85,9 @@ from pathlib import Path
 
 import numpy as np
 import rerun as rr
+import rerun.blueprint as rrb
 import torch
+import yaml
 
 from sfb_video.atomic import AtomicOutput, output_error, temporary_sibling
 from sfb_video.errors import OutputError, SfbError, check_shape
@@ -103,6 +116,8 @@ SUBFRAME_MASK_CLASS = 2
 # In object sizes (the unit of the 3D scene), so they scale with the object.
 TRAJECTORY_LINE_RADIUS = 0.02
 TRAJECTORY_POINT_RADIUS = 0.05
+EYE_MIN_DISTANCE = 6.0
+"""The 3D view's eye stands at least this far from the trajectories' middle, in object sizes."""
 
 Box = tuple[int, int, int, int]
 
@@ -118,6 +133,7 @@ class Recorder(AtomicOutput):
         path: the final ``.rrd`` path, in a folder that exists.
         camera: the full-frame camera every image passed in must match.
         name: the clip's name, shown as the recording's name in the viewer.
+        subframes: n, the TSR sub-frames of each frame (the subframe timeline's step).
         recording_id: rerun's recording id; by default derived from ``name``, so re-runs of one
             clip share it (the viewer merges recordings with the same id).
 
@@ -126,11 +142,19 @@ class Recorder(AtomicOutput):
     """
 
     @timed("recording")
-    def __init__(self, path: str | Path, camera: PinholeCamera, name: str, *, recording_id: str | None = None) -> None:
+    def __init__(
+        self, path: str | Path, camera: PinholeCamera, name: str, *, subframes: int, recording_id: str | None = None
+    ) -> None:
+        if subframes < 1:
+            raise SfbError(f"subframes must be at least 1, got {subframes}")
         self.path = Path(path)
         self.camera = camera
+        self.subframes = subframes
         self._frame: int | None = None
         self._masks_shown: set[int] = set()  # the tracks whose masks show
+        self._sources: dict[int, dict[str, list[int]]] = {}  # track -> mask source -> frames
+        self._steps: dict[int, int] = {}  # track -> the steps of its fits logged so far
+        self._paths: dict[int, np.ndarray] = {}  # track -> its trajectory, as last logged
         self._tmp: Path | None = temporary_sibling(self.path, ".rrd")
         self._pipe: _Pipe | None = None
         if recording_id is None:
@@ -165,7 +189,7 @@ class Recorder(AtomicOutput):
         self._check_image(image, "image")
         self._check_image(background, "background")
         self._flush()  # what the previous frame logged: a write error surfaces here, not at the end
-        self._at(frame=index)
+        self._at_frame(index)
         self._log("world/camera/image", _jpeg(image))
         self._log("background", _jpeg(background))
 
@@ -178,7 +202,7 @@ class Recorder(AtomicOutput):
                 frame's boxes.
             mask: (H, W) bool or float (> 0.5 is the object), or None (clears the previous mask).
         """
-        self._at(frame=index)
+        self._at_frame(index)
         if not boxes:
             self._log("world/camera/image/detection", rr.Clear(recursive=False))
         else:
@@ -203,22 +227,22 @@ class Recorder(AtomicOutput):
 
         Args:
             reconstruction: (3, H, W) full-frame I_hat in [0, 1].
-            subframes: n full-frame TSR sub-frames (3, H, W) in [0, 1] (a tensor (n, 3, H, W) or
-                a sequence that makes them one at a time); n sets the subframe timeline's step
-                for this frame (values ``index * n + k``).
+            subframes: the n full-frame TSR sub-frames (3, H, W) in [0, 1] (a tensor (n, 3, H, W)
+                or a sequence that makes them one at a time), at ``index * n + k`` on the
+                subframe timeline; or one, shown for the whole frame (a frame without a fit).
         """
         self._check_image(reconstruction, "reconstruction")
         if isinstance(subframes, torch.Tensor):
             check_shape(subframes, (None, 3, self.camera.height, self.camera.width), "subframes")
         n = len(subframes)
-        if n < 1:
-            raise SfbError("subframes must hold at least one sub-frame")
-        self._at(frame=index, subframe=index * n)
+        if n not in (1, self.subframes):
+            raise SfbError(f"frame {index}: {n} sub-frames, expected {self.subframes} (or 1 for the whole frame)")
+        self._at_frame(index)
         self._log("reconstruction", _jpeg(reconstruction))
         for k in range(n):
             sub = subframes[k]
             self._check_image(sub, "subframe")
-            self._at(subframe=index * n + k)
+            self._at(subframe=index * self.subframes + k)
             self._log("tsr", _jpeg(sub))
 
     @timed("recording")
@@ -229,44 +253,43 @@ class Recorder(AtomicOutput):
         state: ObjectState,
         losses: dict[str, float],
         curve: list[dict[str, float]],
-        n: int,
     ) -> None:
         """Log the fit of track ``track``'s object in frame ``index`` (under ``world/track_XX``,
         ``losses/track_XX`` and ``fit/track_XX``).
 
         Args:
             state: the fitted object; its mesh is logged with its pose at mid-exposure on the frame
-                timeline and at each of the ``n`` sub-frames' mid-times on the subframe timeline.
+                timeline and at each sub-frame's mid-time on the subframe timeline.
             losses: the final value of each loss.
             curve: one dict (loss name -> value) per optimisation step.
         """
-        if n < 1:
-            raise SfbError("subframes must hold at least one sub-frame")
+        n = self.subframes
         device = state.motion.x0.device
         mid_rot, mid_pos = state.motion.at(torch.full((1,), 0.5, device=device))
         sub_rot, sub_pos = state.motion.at(exposure_times(n, device))
         entity, part = track_entity(track), f"track_{track:02d}"
 
-        self._at(frame=index, subframe=index * n)
+        self._at_frame(index)
         self._log(entity, _mesh3d(state))
-
-        self._at(frame=index)
-        self._log(entity, _transform(mid_rot[0], mid_pos[0]))
         for name, value in losses.items():
             self._log(f"losses/{part}/{rr.escape_entity_path_part(name)}", rr.Scalars(float(value)))
 
+        self._at(frame=index)
+        self._log(entity, _transform(mid_rot[0], mid_pos[0]))
         for k in range(n):
             self._at(subframe=index * n + k)
             self._log(entity, _transform(sub_rot[k], sub_pos[k]))
 
         # One columnar call per loss instead of a log call per step and loss: a fit runs hundreds
-        # of steps. send_columns ignores the stream's current time, so both indexes are explicit.
+        # of steps. send_columns ignores the stream's current time, so the index is explicit.
+        first = self._steps.get(track, 0)
+        self._steps[track] = first + len(curve)
         for name in dict.fromkeys(key for row in curve for key in row):
             steps = [s for s, row in enumerate(curve) if name in row]
             self._check_open()
             self._rec.send_columns(
                 f"fit/{part}/{rr.escape_entity_path_part(name)}",
-                indexes=[rr.TimeColumn(STEP, sequence=steps), rr.TimeColumn(FRAME, sequence=[index] * len(steps))],
+                indexes=[rr.TimeColumn(STEP, sequence=[first + s for s in steps])],
                 columns=rr.Scalars.columns(scalars=[float(curve[s][name]) for s in steps]),
                 strict=True,
             )
@@ -274,25 +297,24 @@ class Recorder(AtomicOutput):
     def log_quality(self, index: int, track: int, explained: float) -> None:
         """Log how much of frame ``index``'s difference from its background track ``track``'s fit
         explains (:func:`sfb_video.stages.composite.explained`) as ``quality/track_XX/explained``."""
-        self._at(frame=index)
+        self._at_frame(index)
         self._log(f"quality/track_{track:02d}/explained", rr.Scalars(float(explained)))
 
     @timed("recording")
-    def log_masks(self, index: int, source: str, box: Box, masks: torch.Tensor | None, n: int, track: int = 0) -> None:
-        """Log which masks the fit of track ``track``'s object in frame ``index`` used and, when it
-        used sub-frame masks, show them (an entity per track: two objects' masks side by side).
+    def log_masks(self, index: int, source: str, box: Box, masks: torch.Tensor | None, track: int = 0) -> None:
+        """Note which masks the fit of track ``track``'s object in frame ``index`` used (written
+        once, on close, as ``run/masks``) and, when it used sub-frame masks, show them at each
+        sub-frame's mid-time (an entity per track: two objects' masks side by side).
 
         Args:
             source: what the fit used, in words (``"diff"``, ``"defmo"``, with their order).
             box: (x, y, w, h) the crop box the masks cover, in frame pixels.
             masks: (N, h, w) soft masks in [0, 1] at the crop's working size, in time order, or
                 None (a fit without them; clears earlier masks).
-            n: the sub-frames of this frame on the subframe timeline (as in :meth:`log_fit`);
-                each shows the mask at its mid-time.
         """
+        n = self.subframes
         entity = f"world/camera/image/subframe_mask/track_{track:02d}"
-        self._at(frame=index)
-        self._log(f"masks/track_{track:02d}", rr.TextLog(source))
+        self._sources.setdefault(track, {}).setdefault(source, []).append(index)
         if masks is None:
             if track in self._masks_shown:
                 self._at(subframe=index * n)
@@ -323,7 +345,8 @@ class Recorder(AtomicOutput):
         points = np.asarray(points, dtype=np.float32)
         if points.ndim != 2 or points.shape[1] != 3:
             raise SfbError(f"trajectory points must have shape (*, 3), got {points.shape}")
-        self._at(frame=self._frame)
+        self._at_frame(self._frame)
+        self._paths[track] = points
         if len(points) == 0:
             self._log(f"world/trajectory/track_{track:02d}", rr.Clear(recursive=False))
             return
@@ -331,6 +354,17 @@ class Recorder(AtomicOutput):
             f"world/trajectory/track_{track:02d}",
             rr.LineStrips3D([points], radii=TRAJECTORY_LINE_RADIUS),
             rr.Points3D(points, radii=TRAJECTORY_POINT_RADIUS),
+        )
+
+    @timed("recording")
+    def log_run(self, config: dict, summary: dict) -> None:
+        """Log the run's resolved ``config`` and its ``summary`` (summary.json's content) once, as
+        static text under ``run``."""
+        text = yaml.safe_dump(config, sort_keys=False)
+        self._log("run/config", rr.TextDocument(f"```yaml\n{text}```", media_type=rr.MediaType.MARKDOWN), static=True)
+        text = json.dumps(summary, indent=2)
+        self._log(
+            "run/summary", rr.TextDocument(f"```json\n{text}\n```", media_type=rr.MediaType.MARKDOWN), static=True
         )
 
     # ----------------------------------------------------------------------------------------------
@@ -347,6 +381,8 @@ class Recorder(AtomicOutput):
         if self._tmp is None:
             return
         try:
+            self._log_sources()
+            self._rec.send_blueprint(layout(sorted(self._steps), list(self._paths.values()), self.subframes))
             self._flush()  # an OutputError comes after aborting
         except BaseException:
             self.abort()  # Ctrl-C while waiting (does nothing after an abort)
@@ -397,6 +433,21 @@ class Recorder(AtomicOutput):
         # its class colours there.
         classes = [(MASK_CLASS, "object", (255, 64, 64)), (SUBFRAME_MASK_CLASS, "sub-frame mask", (64, 160, 255))]
         self._log("world/camera/image", rr.AnnotationContext(classes), static=True)
+
+    def _log_sources(self) -> None:
+        """The masks the fits used, once, per track: a line per source with its frames."""
+        lines = [
+            f"- track {track}: {source}, frames {_spans(frames)}"
+            for track, sources in sorted(self._sources.items())
+            for source, frames in sources.items()
+        ]
+        text = "\n".join(lines) or "no object was fitted"
+        self._log("run/masks", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
+
+    def _at_frame(self, index: int) -> None:
+        """Stamp the next log calls at frame ``index`` and at its first sub-frame, so that what is
+        logged once a frame shows on both timelines."""
+        self._at(frame=index, subframe=index * self.subframes)
 
     def _at(self, *, frame: int | None = None, subframe: int | None = None) -> None:
         """Set exactly the given timelines for the next log calls (the others are unset)."""
@@ -531,6 +582,97 @@ class _Pipe:
             with contextlib.suppress(OSError):
                 (folder / "pipe").unlink(missing_ok=True)
                 folder.rmdir()
+
+
+def _spans(frames: Sequence[int]) -> str:
+    """Frame indices as runs: [0, 1, 2, 5] -> "0-2, 5"."""
+    runs: list[list[int]] = []
+    for f in sorted(frames):
+        if runs and f == runs[-1][1] + 1:
+            runs[-1][1] = f
+        else:
+            runs.append([f, f])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
+
+
+def layout(tracks: Sequence[int], paths: Sequence[np.ndarray], subframes: int) -> rrb.Blueprint:
+    """The viewer's layout of a recording (its blueprint), for what a person comes to see.
+
+    Top: the input frame with its detection (and masks) beside the super-resolved sub-frame.
+    Bottom: the 3D view framed on the trajectories, beside tabs: one per track (its losses per
+    frame and how much it explains), the fits' loss curves (on the step timeline), the
+    reconstruction and background, the run's text (masks, summary, config). It opens on the
+    subframe timeline (the frame timeline for a recording of one sub-frame per frame), where
+    every panel it shows has content. Its views' ids are derived from their place in it, so the
+    same recording's layout is the same at every load and two runs write the same layout.
+
+    Args:
+        tracks: the tracks fitted; paths: (P, 3) each track's 3D positions.
+    """
+    per_track = [
+        rrb.TimeSeriesView(
+            name=f"track {t}",
+            origin="/",
+            contents=[f"losses/track_{t:02d}/**", f"quality/track_{t:02d}/**"],
+        )
+        for t in tracks
+    ]
+    curves = rrb.TimeSeriesView(name="fit curves (step timeline)", origin="fit")
+    text = rrb.Vertical(
+        rrb.TextDocumentView(name="masks", origin="run/masks"),
+        rrb.TextDocumentView(name="summary", origin="run/summary"),
+        rrb.TextDocumentView(name="config", origin="run/config"),
+        name="run",
+    )
+    images = rrb.Horizontal(
+        rrb.Spatial2DView(name="reconstruction", origin="reconstruction"),
+        rrb.Spatial2DView(name="background", origin="background"),
+        name="reconstruction",
+    )
+    scene = rrb.Spatial3DView(
+        name="3D",
+        origin="world",
+        # The frame on the camera's frustum would hide the object behind it from this eye.
+        contents=["+ $origin/**", "- world/camera/image/**"],
+        eye_controls=_eye(paths),
+    )
+    root = rrb.Vertical(
+        rrb.Horizontal(
+            rrb.Spatial2DView(name="input and detection", origin="world/camera/image"),
+            rrb.Spatial2DView(name="super-resolved", origin="tsr"),
+        ),
+        rrb.Horizontal(scene, rrb.Tabs(*per_track, curves, images, text, active_tab=0)),
+        row_shares=[3, 2],
+    )
+    _fix_ids(root, "root")
+    timeline = SUBFRAME if subframes > 1 else FRAME
+    return rrb.Blueprint(root, rrb.TimePanel(timeline=timeline, state="expanded"), auto_layout=False, auto_views=False)
+
+
+def _eye(paths: Sequence[np.ndarray]) -> rrb.archetypes.EyeControls3D | None:
+    """An eye looking along the camera's axis at the middle of the trajectories, back far enough
+    to see them whole (None: no trajectory; the viewer frames the scene)."""
+    points = [p for p in paths if len(p)]
+    if not points:
+        return None
+    every = np.concatenate(points).astype(np.float64)
+    low, high = every.min(0), every.max(0)
+    target = (low + high) / 2
+    # In object sizes: a still object is still seen at a few of its sizes.
+    distance = 1.2 * float(np.linalg.norm(high - low)) + EYE_MIN_DISTANCE
+    # The camera frame is RDF (y down): the eye sits a little above the camera's axis.
+    direction = np.array([0.0, -0.35, -1.0]) / np.linalg.norm([0.0, -0.35, -1.0])
+    return rrb.archetypes.EyeControls3D(
+        kind="Orbital", position=target + distance * direction, look_target=target, eye_up=[0.0, -1.0, 0.0]
+    )
+
+
+def _fix_ids(part: rrb.Container | rrb.View, place: str) -> None:
+    """Give ``part`` and what it holds ids derived from ``place``, not random ones."""
+    part.id = uuid.uuid5(uuid.NAMESPACE_URL, f"{APPLICATION_ID}:layout:{place}")
+    if isinstance(part, rrb.Container):  # a view's contents are its entity queries
+        for i, inner in enumerate(part.contents):
+            _fix_ids(inner, f"{place}/{i}")
 
 
 def _write_all(fd: int, data: bytes) -> None:

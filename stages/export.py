@@ -38,7 +38,6 @@ from sfb_video.results import FrameResult, SavedWindow, load_result, load_window
 from sfb_video.run_folder import (
     BEST_MESH,
     MESHES,
-    RECORDING,
     TSR_VIDEO,
     ensure_folder,
     frame_path,
@@ -486,14 +485,14 @@ def export_frames(
     fps: float,
     n: int,
     config: Config,
-    name: str,
     diameter: float | None,
+    recorder: Recorder,
 ) -> Exported:
     """Stream the clip once and write ``tsr.mp4`` (of ``size`` (width, height); N sub-frames
-    per fitted frame, every object of the frame in them; the frame N times otherwise), ``recording.rrd``,
+    per fitted frame, every object of the frame in them; the frame N times otherwise),
     ``meshes/frame_XXXXX_track_YY.glb`` and one ``meshes/track_YY.glb`` per track (its lowest-L_I
-    frame's mesh), loading each object's saved result (and its window's joint fit) only while it
-    is needed, so memory does not grow with the clip."""
+    frame's mesh), and log every frame to ``recorder``, loading each object's saved result (and
+    its window's joint fit) only while it is needed, so memory does not grow with the clip."""
     done = Exported()
     trajectory: dict[int, list[np.ndarray]] = {}
     best_loss = math.inf
@@ -504,10 +503,7 @@ def export_frames(
             fitted.setdefault(s.index, []).append(s)
     joint = _Windows(folder, windows)
     ensure_folder(folder / MESHES)
-    with (
-        VideoWriter(folder / TSR_VIDEO, fps * n, *size) as video,
-        Recorder(folder / RECORDING, camera, name) as recorder,
-    ):
+    with VideoWriter(folder / TSR_VIDEO, fps * n, *size) as video:
         for frame in frames:
             recorder.log_frame(frame.index, frame.pixels, frame.background_pixels)
             difference = difference_image(frame.pixels, frame.background_pixels)
@@ -518,6 +514,7 @@ def export_frames(
             if not present:
                 for _ in range(n):
                     video.write(unfitted(frame, config))
+                recorder.log_subframes(frame.index, frame.pixels, [frame.pixels])
                 continue
             objects = []
             for status in present:
@@ -526,11 +523,11 @@ def export_frames(
                 result = single if window is None else with_joint(single, window)
                 rendered = render_frame(frame, result, camera, n, config, difference)
                 objects.append((result, rendered))
-                recorder.log_fit(frame.index, result.track, result.state, result.losses, result.curve, n)
+                recorder.log_fit(frame.index, result.track, result.state, result.losses, result.curve)
                 recorder.log_quality(frame.index, result.track, rendered.explained)
                 order = _mask_order(result)
                 source = result.mask_source if order is None else f"{result.mask_source}, order {order}"
-                recorder.log_masks(frame.index, source, result.crop_box, result.masks, n, result.track)
+                recorder.log_masks(frame.index, source, result.crop_box, result.masks, result.track)
                 write_glb(result.state, mesh_path(folder, frame.index, result.track))
                 rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
                 record = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)

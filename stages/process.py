@@ -24,6 +24,7 @@ from sfb_video.atomic import write_json
 from sfb_video.config import Config, config_to_dict, save_config
 from sfb_video.errors import SfbError, printable
 from sfb_video.geometry.camera import PinholeCamera
+from sfb_video.recording import Recorder
 from sfb_video.registration import CameraMotion
 from sfb_video.results import FrameResult, SavedWindow, load_window
 from sfb_video.run_folder import (
@@ -32,6 +33,7 @@ from sfb_video.run_folder import (
     DETECTIONS,
     MARKER,
     OUTPUTS,
+    RECORDING,
     SUMMARY,
     TRAJECTORY,
     RunFolder,
@@ -170,12 +172,14 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     windows = [w for w in windows if load_window(window_path(folder, w[0], w[1][0])).accepted]
     diameter = record["object_diameter"]
     name = printable(video.stem)
-    done = export_frames(folder, stream, statuses, windows, camera, size, info.fps, tsr, config, name, diameter)
-    write_csv(folder / TRAJECTORY, done.rows)
-    summary = _summary(record, info, statuses, done, tsr, device_note, config.video.min_explained)
-    summary["tracks"] = _track_summary(statuses, done)
-    summary["camera"] = _camera_summary(motion)
-    summary["joint"] = _joint_summary(folder, summary_windows)
+    with Recorder(folder / RECORDING, camera, name, subframes=tsr) as recorder:
+        done = export_frames(folder, stream, statuses, windows, camera, size, info.fps, tsr, config, diameter, recorder)
+        write_csv(folder / TRAJECTORY, done.rows)
+        summary = _summary(record, info, statuses, done, tsr, device_note, config.video.min_explained)
+        summary["tracks"] = _track_summary(statuses, done)
+        summary["camera"] = _camera_summary(motion)
+        summary["joint"] = _joint_summary(folder, summary_windows)
+        recorder.log_run(config_to_dict(config), summary)
     write_json(folder / SUMMARY, summary)
     return summary
 

@@ -166,7 +166,7 @@ def test_the_recorder_stops_at_once_on_a_full_disk_and_leaves_nothing(
         mask[: camera.height // 2, : camera.width // 2] = True
         case, start = {"width": width, "error": None}, time.monotonic()
         try:
-            with Recorder(Path(small) / "recording.rrd", camera, "clip") as rec:
+            with Recorder(Path(small) / "recording.rrd", camera, "clip", subframes=1) as rec:
                 for i in range(500):
                     rec.log_frame(i, noise(camera.width, camera.height), noise(camera.width, camera.height))
                     rec.log_detection(i, {0: (0, 0, camera.width // 2, camera.height // 2)}, mask)
@@ -177,7 +177,7 @@ def test_the_recorder_stops_at_once_on_a_full_disk_and_leaves_nothing(
 
     # On close: the last frames and the footer do not fit.
     camera = PinholeCamera.from_fov(160, 120, 45.0)
-    rec = Recorder(Path(roomy) / "recording.rrd", camera, "clip")
+    rec = Recorder(Path(roomy) / "recording.rrd", camera, "clip", subframes=1)
     for i in range(5):
         rec.log_frame(i, noise(), noise())
     fill(roomy)
@@ -190,7 +190,7 @@ def test_the_recorder_stops_at_once_on_a_full_disk_and_leaves_nothing(
 
     # Then rerun is not wedged: a recorder on a disk with room works, in the same process.
     os.remove(Path(roomy) / "filler")
-    with Recorder(Path(roomy) / "recording.rrd", camera, "clip") as rec:
+    with Recorder(Path(roomy) / "recording.rrd", camera, "clip", subframes=1) as rec:
         for i in range(3):
             rec.log_frame(i, noise(), noise())
     report["after"] = len(RrdReader(Path(roomy) / "recording.rrd").stream().to_chunks())

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
+import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -91,18 +93,25 @@ def inputs() -> Inputs:
     )
 
 
+CONFIG = {"video": {"tsr": N_SUB}, "joint": {"window": 6}}
+SUMMARY = {"frames_fitted": len(FITTED), "tracks": {"0": {"frames": list(FITTED)}}}
+
+
 def record_clip(path: Path, inputs: Inputs, name: str = "clip") -> None:
-    """Log three frames, the middle one without a detection or a fit."""
-    with Recorder(path, CAMERA, name) as rec:
+    """Log three frames, the middle one without a detection or a fit, as the export logs them."""
+    with Recorder(path, CAMERA, name, subframes=N_SUB) as rec:
         for i, image in enumerate(inputs.images):
             rec.log_frame(i, image, inputs.background)
             if i in FITTED:
                 rec.log_detection(i, {0: BOX}, inputs.mask)
-                rec.log_fit(i, 0, inputs.state, inputs.losses, inputs.curve, N_SUB)
+                rec.log_fit(i, 0, inputs.state, inputs.losses, inputs.curve)
+                rec.log_masks(i, "diff", BOX, None)
                 rec.log_subframes(i, inputs.reconstruction, inputs.subframes)
             else:
                 rec.log_detection(i, {}, None)
+                rec.log_subframes(i, image, [image])
             rec.log_trajectory(inputs.trajectory[: i + 1], 0)
+        rec.log_run(CONFIG, SUMMARY)
 
 
 @pytest.fixture(scope="module")
@@ -193,7 +202,7 @@ def test_the_frame_timeline_holds_the_logged_frames(recorded: Recorded) -> None:
     assert frames == {0, 1, 2}
     assert times(recorded.chunks, "/world/camera/image", "EncodedImage:blob", "frame") == [0, 1, 2]
     assert times(recorded.chunks, "/background", "EncodedImage:blob", "frame") == [0, 1, 2]
-    assert times(recorded.chunks, "/reconstruction", "EncodedImage:blob", "frame") == list(FITTED)
+    assert times(recorded.chunks, "/reconstruction", "EncodedImage:blob", "frame") == [0, 1, 2]
     # No wall-clock timeline: the viewer should offer only ours.
     names = {name for chunk in recorded.chunks for name in chunk.timeline_names}
     assert names == {"frame", "subframe", "step"}
@@ -233,9 +242,28 @@ def test_pinhole_matches_the_camera(recorded: Recorded) -> None:
 
 
 def test_tsr_has_n_rows_per_fitted_frame_on_the_subframe_timeline_only(recorded: Recorded) -> None:
-    expected = [i * N_SUB + k for i in FITTED for k in range(N_SUB)]
+    # A frame without a fit shows the frame itself from its first sub-frame on, not the sub-frame
+    # before it.
+    expected = sorted([i * N_SUB + k for i in FITTED for k in range(N_SUB)] + [1 * N_SUB])
     assert times(recorded.chunks, "/tsr", "EncodedImage:blob", "subframe") == expected
     assert not times(recorded.chunks, "/tsr", "EncodedImage:blob", "frame")
+
+
+def test_what_is_logged_once_a_frame_shows_on_the_subframe_timeline_too(recorded: Recorded) -> None:
+    # The viewer opens on the subframe timeline: the input, its detection, the reconstruction, the
+    # losses and the trajectory must show there, at each frame's first sub-frame.
+    every = [i * N_SUB for i in range(3)]
+    fitted = [i * N_SUB for i in FITTED]
+    for entity, component, expected in (
+        ("/world/camera/image", "EncodedImage:blob", every),
+        ("/background", "EncodedImage:blob", every),
+        ("/reconstruction", "EncodedImage:blob", every),
+        ("/world/camera/image/detection", "Boxes2D:centers", fitted),
+        ("/world/camera/image/mask", "SegmentationImage:buffer", fitted),
+        ("/losses/track_00/total", "Scalars:scalars", fitted),
+        ("/world/trajectory/track_00", "LineStrips3D:strips", every),
+    ):
+        assert times(recorded.chunks, entity, component, "subframe") == expected, entity
 
 
 def test_masks_are_named_per_frame_and_subframe_masks_overlay_the_image(inputs: Inputs, tmp_path: Path) -> None:
@@ -244,12 +272,12 @@ def test_masks_are_named_per_frame_and_subframe_masks_overlay_the_image(inputs: 
     masks[0, :, : w // 2] = 1
     masks[1, :, w // 2 :] = 1
     path = tmp_path / "masks.rrd"
-    with Recorder(path, CAMERA, "masks") as rec:
+    with Recorder(path, CAMERA, "masks", subframes=N_SUB) as rec:
         for i in range(3):
             rec.log_frame(i, inputs.images[i], inputs.background)
-            rec.log_masks(i, "defmo, order as given" if i == 0 else "diff", BOX, masks if i == 0 else None, N_SUB)
+            rec.log_masks(i, "defmo, order as given" if i == 0 else "diff", BOX, masks if i == 0 else None)
             if i == 0:  # a second object in the same frame: its own entity, the first's kept
-                rec.log_masks(i, "diff", BOX, masks.flip(0), N_SUB, track=1)
+                rec.log_masks(i, "diff", BOX, masks.flip(0), track=1)
     chunks = RrdReader(path).stream().to_chunks()
     entity = "/world/camera/image/subframe_mask/track_00"
     assert times(chunks, entity, "SegmentationImage:buffer", "subframe") == [0, 1, 2]
@@ -264,10 +292,15 @@ def test_masks_are_named_per_frame_and_subframe_masks_overlay_the_image(inputs: 
         assert np.array_equal(ids, expected), k
     # Frame 1 has none and clears them; frame 2 has nothing left to clear.
     assert times(chunks, entity, "Clear:is_recursive", "subframe") == [N_SUB]
-    said = rows(chunks, "/masks/track_00", "TextLog:text", "frame")
-    assert said == [(0, ["defmo, order as given"]), (1, ["diff"]), (2, ["diff"])]
-    with Recorder(tmp_path / "bad.rrd", CAMERA, "bad") as rec, pytest.raises(SfbError, match="not inside"):
-        rec.log_masks(0, "defmo", (60, 40, 10, 10), masks, N_SUB)
+    # Said once, static, not once a frame.
+    said = one_at(chunks, "/run/masks", "TextDocument:text", None)
+    assert said == "- track 0: defmo, order as given, frames 0\n- track 0: diff, frames 1-2\n- track 1: diff, frames 0"
+    assert not any(c.entity_path.startswith("/masks") for c in chunks)
+    with (
+        Recorder(tmp_path / "bad.rrd", CAMERA, "bad", subframes=N_SUB) as rec,
+        pytest.raises(SfbError, match="not inside"),
+    ):
+        rec.log_masks(0, "defmo", (60, 40, 10, 10), masks)
 
 
 def test_mesh_has_the_triangles_texcoords_and_texture_of_the_state(recorded: Recorded) -> None:
@@ -318,11 +351,12 @@ def test_losses_and_the_optimisation_curve(recorded: Recorded) -> None:
     assert rows(recorded.chunks, "/losses/track_00/total", "Scalars:scalars", "frame") == [(i, [0.25]) for i in FITTED]
     assert times(recorded.chunks, "/losses/track_00/data\\ term", "Scalars:scalars", "frame") == list(FITTED)
     steps = rows(recorded.chunks, "/fit/track_00/total", "Scalars:scalars", "step")
-    assert sorted(steps) == sorted((s, [inputs.curve[s]["total"]]) for s in range(CURVE_STEPS) for _ in FITTED)
-    # Each curve row also carries its frame, so one frame's curve can be picked out.
-    assert times(recorded.chunks, "/fit/track_00/total", "Scalars:scalars", "frame") == sorted(
-        i for i in FITTED for _ in range(CURVE_STEPS)
-    )
+    # The second fit's curve follows the first's on the step timeline, not on top of it.
+    assert steps == [
+        (j * CURVE_STEPS + s, [inputs.curve[s]["total"]]) for j in range(len(FITTED)) for s in range(CURVE_STEPS)
+    ]
+    # On the step timeline only: on the frame timeline a fit's curve was a staircase of its last values.
+    assert not times(recorded.chunks, "/fit/track_00/total", "Scalars:scalars", "frame")
 
 
 def test_trajectory_grows_frame_by_frame(recorded: Recorded) -> None:
@@ -337,7 +371,7 @@ def test_recording_id_comes_from_the_clip_name_unless_given(tmp_path: Path) -> N
     ids = []
     for name, given in (("a", None), ("a", None), ("b", None), ("a", "mine")):
         path = tmp_path / f"{len(ids)}.rrd"
-        with Recorder(path, CAMERA, name, recording_id=given):
+        with Recorder(path, CAMERA, name, subframes=N_SUB, recording_id=given):
             pass
         ids.append(RrdReader(path).recordings()[0].recording_id)
     assert ids[0] == ids[1] != ids[2] and ids[3] == "mine"
@@ -348,7 +382,10 @@ def test_recording_id_comes_from_the_clip_name_unless_given(tmp_path: Path) -> N
 
 
 def test_two_recorders_coexist_without_mixing(inputs: Inputs, tmp_path: Path) -> None:
-    first, second = Recorder(tmp_path / "a.rrd", CAMERA, "a"), Recorder(tmp_path / "b.rrd", CAMERA, "b")
+    first, second = (
+        Recorder(tmp_path / "a.rrd", CAMERA, "a", subframes=N_SUB),
+        Recorder(tmp_path / "b.rrd", CAMERA, "b", subframes=N_SUB),
+    )
     for i in range(3):
         first.log_frame(i, inputs.images[i], inputs.background)
         second.log_frame(10 + i, inputs.images[i], inputs.background)
@@ -377,7 +414,7 @@ def test_same_inputs_give_the_same_recording(recorded: Recorded, tmp_path: Path)
 
 def test_the_file_appears_only_on_close(inputs: Inputs, tmp_path: Path) -> None:
     path = tmp_path / "recording.rrd"
-    rec = Recorder(path, CAMERA, "clip")
+    rec = Recorder(path, CAMERA, "clip", subframes=N_SUB)
     rec.log_frame(0, inputs.images[0], inputs.background)
     (tmp,) = path.parent.iterdir()
     assert tmp.name.startswith(".") and tmp.name.endswith(".tmp.rrd") and not path.exists()
@@ -389,7 +426,7 @@ def test_the_file_appears_only_on_close(inputs: Inputs, tmp_path: Path) -> None:
 
 
 def test_abort_leaves_nothing(inputs: Inputs, tmp_path: Path) -> None:
-    rec = Recorder(tmp_path / "recording.rrd", CAMERA, "clip")
+    rec = Recorder(tmp_path / "recording.rrd", CAMERA, "clip", subframes=N_SUB)
     rec.log_frame(0, inputs.images[0], inputs.background)
     rec.abort()
     assert list(tmp_path.iterdir()) == []
@@ -397,7 +434,10 @@ def test_abort_leaves_nothing(inputs: Inputs, tmp_path: Path) -> None:
 
 def test_an_exception_in_the_with_block_leaves_no_file(inputs: Inputs, tmp_path: Path) -> None:
     (tmp_path / "recording.rrd").write_bytes(b"previous run")
-    with pytest.raises(RuntimeError, match="boom"), Recorder(tmp_path / "recording.rrd", CAMERA, "clip") as rec:
+    with (
+        pytest.raises(RuntimeError, match="boom"),
+        Recorder(tmp_path / "recording.rrd", CAMERA, "clip", subframes=N_SUB) as rec,
+    ):
         rec.log_frame(0, inputs.images[0], inputs.background)
         raise RuntimeError("boom")
     # The previous file is untouched, and no temporary is left behind.
@@ -406,11 +446,13 @@ def test_an_exception_in_the_with_block_leaves_no_file(inputs: Inputs, tmp_path:
 
 
 def test_wrong_image_shapes_are_clear_errors(inputs: Inputs, tmp_path: Path) -> None:
-    with Recorder(tmp_path / "recording.rrd", CAMERA, "clip") as rec:
+    with Recorder(tmp_path / "recording.rrd", CAMERA, "clip", subframes=N_SUB) as rec:
         with pytest.raises(SfbError, match=r"image must have shape \(3, 48, 64\)"):
             rec.log_frame(0, torch.rand(3, 10, 10), inputs.background)
         with pytest.raises(SfbError, match="subframes"):
             rec.log_subframes(0, inputs.reconstruction, inputs.subframes[0])
+        with pytest.raises(SfbError, match="2 sub-frames, expected 3"):
+            rec.log_subframes(0, inputs.reconstruction, inputs.subframes[:2])
         with pytest.raises(SfbError, match="log a frame"):
             rec.log_trajectory(inputs.trajectory)
 
@@ -422,7 +464,7 @@ def test_read_only_folder_is_a_one_line_error(tmp_path: Path) -> None:
     folder.chmod(0o555)
     try:
         with pytest.raises(SfbError, match=r"cannot write .*recording\.rrd: Permission denied") as info:
-            Recorder(folder / "recording.rrd", CAMERA, "clip")
+            Recorder(folder / "recording.rrd", CAMERA, "clip", subframes=N_SUB)
         assert "\n" not in str(info.value)
         assert list(folder.iterdir()) == []
     finally:
@@ -433,5 +475,101 @@ def test_unwritable_path_is_a_one_line_error(tmp_path: Path) -> None:
     # A folder that is a file: fails for root too, through the same path as a read-only folder.
     (tmp_path / "file").write_text("")
     with pytest.raises(SfbError, match=r"cannot write .*recording\.rrd: Not a directory") as info:
-        Recorder(tmp_path / "file" / "recording.rrd", CAMERA, "clip")
+        Recorder(tmp_path / "file" / "recording.rrd", CAMERA, "clip", subframes=N_SUB)
     assert "\n" not in str(info.value)
+
+
+# --------------------------------------------------------------------------------------------------
+# The layout (blueprint)
+
+
+def blueprint_rows(path: Path) -> dict[str, dict[str, Any]]:
+    """Each entity of the recording's blueprint (``/view/<id>``, ``/container/<id>``, ...) ->
+    its components' values (the first instance where there is one)."""
+    reader = RrdReader(path)
+    (store,) = reader.blueprints()
+    out: dict[str, dict[str, Any]] = {}
+    for chunk in reader.stream(store=store).to_chunks():
+        batch = chunk.to_record_batch()
+        for name in batch.schema.names:
+            if ":" in name and not name.startswith("rerun.controls"):
+                value = batch.column(name)[0].as_py()
+                out.setdefault(chunk.entity_path, {})[name.split(":")[1]] = value
+    return out
+
+
+def shown_views(entities: dict[str, dict[str, Any]]) -> tuple[list[str], list[str]]:
+    """(the views shown when the viewer opens, the views behind a tab), by display name."""
+    shown: list[str] = []
+    hidden: list[str] = []
+
+    def walk(path: str, visible: bool) -> None:
+        row = entities["/" + path]
+        if path.startswith("view/"):
+            (shown if visible else hidden).append(row["display_name"][0])
+            return
+        tabs = row["container_kind"][0] == 1  # rerun's ContainerKind: 1 tabs, 2 horizontal, 3 vertical
+        active = (row.get("active_tab") or [None])[0]
+        for inner in row["contents"]:
+            walk(inner, visible and (not tabs or inner == active))
+
+    (root,) = entities["/viewport"]["root_container"]
+    walk(f"container/{uuid.UUID(bytes=bytes(root))}", True)
+    return shown, hidden
+
+
+def test_the_recording_opens_on_a_layout_of_what_a_person_comes_to_see(recorded: Recorded) -> None:
+    entities = blueprint_rows(recorded.path)
+    views = {
+        row["display_name"][0]: (row["class_identifier"][0], "/" + row["space_origin"][0].lstrip("/"))
+        for path, row in entities.items()
+        if path.startswith("/view/") and "display_name" in row
+    }
+    assert views == {
+        "input and detection": ("2D", "/world/camera/image"),
+        "super-resolved": ("2D", "/tsr"),
+        "3D": ("3D", "/world"),
+        "track 0": ("TimeSeries", "/"),
+        "fit curves (step timeline)": ("TimeSeries", "/fit"),
+        "reconstruction": ("2D", "/reconstruction"),
+        "background": ("2D", "/background"),
+        "masks": ("TextDocument", "/run/masks"),
+        "summary": ("TextDocument", "/run/summary"),
+        "config": ("TextDocument", "/run/config"),
+    }
+    assert entities["/time_panel"]["timeline"] == ["subframe"]
+    assert entities["/viewport"]["auto_views"] == [False]  # the viewer adds none of its own
+    shown, hidden = shown_views(entities)
+    assert shown == ["input and detection", "super-resolved", "3D", "track 0"]
+    assert "fit curves (step timeline)" in hidden
+    # Every view shown has content on the timeline it opens on (the views' own entities).
+    content = {
+        "input and detection": "/world/camera/image",
+        "super-resolved": "/tsr",
+        "3D": "/world/track_00/object",
+        "track 0": "/losses/track_00/total",
+    }
+    for name in shown:
+        assert any(c.entity_path == content[name] and "subframe" in c.timeline_names for c in recorded.chunks), name
+    assert any(c.entity_path.startswith("/fit/") and "step" in c.timeline_names for c in recorded.chunks)
+    for entity in ("/run/masks", "/run/summary", "/run/config"):
+        assert rows(recorded.chunks, entity, "TextDocument:text", None), entity
+    assert json.loads(one_at(recorded.chunks, "/run/summary", "TextDocument:text", None)[8:-4]) == SUMMARY
+
+
+def test_the_3d_view_is_framed_on_the_trajectory(recorded: Recorded) -> None:
+    entities = blueprint_rows(recorded.path)
+    (eye,) = [row for path, row in entities.items() if path.endswith("/EyeControls3D")]
+    points = recorded.inputs.trajectory
+    target = (points.min(0) + points.max(0)) / 2
+    assert np.allclose(eye["look_target"][0], target, atol=1e-5)
+    # Before the object, on the camera's side, and near enough that it is not a speck: the
+    # camera (the origin) stands 5 object sizes away, the eye closer than twice that.
+    position = np.asarray(eye["position"][0])
+    assert position[2] < target[2] and np.linalg.norm(position - target) < 2 * np.linalg.norm(target)
+
+
+def test_a_second_run_writes_the_same_layout(recorded: Recorded, tmp_path: Path) -> None:
+    path = tmp_path / "again.rrd"
+    record_clip(path, recorded.inputs)
+    assert blueprint_rows(path) == blueprint_rows(recorded.path)

@@ -50,7 +50,7 @@ def test_process_with_defmo_weights_uses_and_reports_them_per_frame(
         assert frame["masks"] == "defmo" and frame["masks_order"] in ("as given", "reversed")
         assert "silhouette" in frame["losses"] and "difference" not in frame["losses"]
     entities = {c.entity_path for c in RrdReader(out / "recording.rrd").stream().to_chunks()}
-    assert {"/world/camera/image/subframe_mask/track_00", "/masks/track_00"} <= entities
+    assert {"/world/camera/image/subframe_mask/track_00", "/run/masks"} <= entities
 
 
 def test_process_without_weights_says_once_that_it_falls_back(
