@@ -188,6 +188,8 @@ def fit_track_window(
         prototypes=() if previous is not None else config.joint.prototypes,
         shape_from=shape_from,
     )
+    # A window that stands for none of its frames (wholly inside its neighbours) is still
+    # judged, on all of them: its fit seeds the next window.
     shown = [i for i in members if shown is None or i in shown] or list(members)
     if config.joint.refine != "off":
         frames = [crops[i] for i in shown]
