@@ -18,8 +18,10 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
+from typing import IO
 from urllib.parse import quote
 
 from sfb_video.errors import SfbError
@@ -94,8 +96,8 @@ def _answers(host: str, port: int) -> bool:
         return False
 
 
-def _wait_until_served(process: subprocess.Popen[str], host: str, ports: tuple[int, ...]) -> None:
-    """Return once every port answers on ``host``.
+def _wait_until_served(process: subprocess.Popen[bytes], log: IO[bytes], host: str, ports: tuple[int, ...]) -> None:
+    """Return once every port answers on ``host``; ``log`` is where the viewer writes its stderr.
 
     Raises:
         SfbError: the viewer stopped first, or did not answer within :data:`START_TIMEOUT_S`.
@@ -104,7 +106,7 @@ def _wait_until_served(process: subprocess.Popen[str], host: str, ports: tuple[i
     waiting = list(ports)
     while waiting:
         if process.poll() is not None:
-            raise SfbError(f"the rerun web viewer stopped before it served: {_last_error(process.communicate()[1])}")
+            raise SfbError(f"the rerun web viewer stopped before it served: {_last_error(log)}")
         if time.monotonic() > deadline:
             raise SfbError(f"the rerun web viewer did not answer on port {waiting[0]} within {START_TIMEOUT_S:.0f} s")
         if _answers(host, waiting[0]):
@@ -113,7 +115,9 @@ def _wait_until_served(process: subprocess.Popen[str], host: str, ports: tuple[i
             time.sleep(0.1)
 
 
-def _last_error(err: str) -> str:
+def _last_error(log: IO[bytes]) -> str:
+    log.seek(0)
+    err = log.read().decode(errors="replace")
     lines = [line for line in err.splitlines() if "rror" in line] or err.splitlines()[-1:]
     return lines[-1].strip() if lines else "no message"
 
@@ -166,16 +170,28 @@ def replay(run: Path, *, web: bool, web_port: int = WEB_PORT, grpc_port: int = G
     _check_port(web_port, bind, "--web-port")
     _check_port(grpc_port, bind, "--grpc-port")
     server = [*command, "--serve-web", "--bind", bind, "--web-viewer-port", str(web_port), "--port", str(grpc_port)]
-    # The viewer's own log lines (telemetry, analytics notices) would bury the address we print.
-    process = subprocess.Popen(
-        [*server, str(path)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True
-    )
+    # The viewer's own log lines (telemetry, analytics notices) would bury the address we print;
+    # a file, not a pipe, keeps them for the error message: a pipe nobody reads while the viewer
+    # serves would stop it once full.
+    with tempfile.TemporaryFile() as log:
+        process = subprocess.Popen([*server, str(path)], stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
+        status = _serve_until_stopped(process, log, bind, web_port, grpc_port, path)
+        if status != 0:
+            raise SfbError(f"the rerun web viewer stopped: {_last_error(log)}")
+    return 0
+
+
+def _serve_until_stopped(
+    process: subprocess.Popen[bytes], log: IO[bytes], bind: str, web_port: int, grpc_port: int, path: Path
+) -> int:
+    """Wait for the viewer to answer, print where, and wait for it to stop (or for Ctrl-C or
+    SIGTERM, which stop it). Returns its exit status, 0 when this command stopped it."""
     stop_on_sigterm = signal.signal(signal.SIGTERM, _interrupt)
     try:
         # An address printed before its ports listen opens on "connection refused".
-        _wait_until_served(process, LOCAL if bind in EVERY_ADDRESS else bind, (grpc_port, web_port))
+        _wait_until_served(process, log, LOCAL if bind in EVERY_ADDRESS else bind, (grpc_port, web_port))
         print(served_message(path, bind, web_port, grpc_port), flush=True)
-        _, err = process.communicate()
+        return process.wait()
     except KeyboardInterrupt:
         return 0
     finally:
@@ -187,6 +203,3 @@ def replay(run: Path, *, web: bool, web_port: int = WEB_PORT, grpc_port: int = G
             except subprocess.TimeoutExpired:
                 os.killpg(process.pid, signal.SIGKILL)
                 process.wait()
-    if process.returncode != 0:
-        raise SfbError(f"the rerun web viewer stopped: {_last_error(err)}")
-    return 0

@@ -146,3 +146,18 @@ def test_a_port_in_use_is_one_line(run: Path, capsys: pytest.CaptureFixture[str]
         port = busy.getsockname()[1]
         assert main(["replay", str(run), "--web", "--web-port", str(port), "--bind", "127.0.0.1"]) == 2
     assert f"port {port} (--web-port) is in use" in capsys.readouterr().err
+
+
+def test_a_viewer_that_fails_after_much_logging_is_one_line_with_its_error(
+    run: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # More than a pipe holds (64 KiB): read from a pipe only after the viewer stopped, it would
+    # block on its own log and the command would wait out its start timeout instead.
+    chatty = "import sys; sys.stderr.write('telemetry notice\\n' * 20000 + 'Error: no GPU adapter\\n'); sys.exit(1)"
+    monkeypatch.setattr(sfb_video.replay, "viewer_command", lambda: [sys.executable, "-c", chatty])
+    monkeypatch.setattr(sfb_video.replay, "START_TIMEOUT_S", 20.0)
+    web, grpc = _free_port(), _free_port()
+    assert main(["replay", str(run), "--web", "--web-port", str(web), "--grpc-port", str(grpc)]) == 2
+    err = capsys.readouterr().err
+    assert "stopped before it served: Error: no GPU adapter" in err
+    assert len(err.strip().splitlines()) == 1
