@@ -184,6 +184,7 @@ def search_spin(
     candidates: torch.Tensor,
     score: Callable[[torch.Tensor], SpinScore],
     refine_deg: Sequence[float],
+    known: Sequence[SpinScore] = (),
 ) -> tuple[SpinScore, int]:
     """The candidate spin of lowest residual, refined by a pattern search.
 
@@ -192,11 +193,12 @@ def search_spin(
         score: spin (3,) -> its :class:`SpinScore`.
         refine_deg: the pattern search's step sizes, largest first: at each, the spin moves by
             that angle along +-x, +-y, +-z while a move lowers the residual.
+        known: spins scored already, candidates too but not scored again.
 
     Returns:
         the best score and the number of spins scored.
     """
-    best = min((score(s) for s in candidates), key=lambda s: s.residual)
+    best = min([*known, *(score(s) for s in candidates)], key=lambda s: s.residual)
     scored = len(candidates)
     for step_deg in refine_deg:
         step = math.radians(step_deg)

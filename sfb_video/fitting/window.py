@@ -453,21 +453,24 @@ def trial_shapes(
     shown = [n for n in names if n not in NEEDS or outline.shows(NEEDS[n])]
     starts = {name: shaped_start(name, outline) for name in dict.fromkeys(("sphere", *shown))}
 
-    def search(start: ShapedStart, grid: torch.Tensor, refine: tuple[float, ...]) -> SpinScore:
+    def search(
+        start: ShapedStart, grid: torch.Tensor, refine: tuple[float, ...], known: tuple[SpinScore, ...] = ()
+    ) -> SpinScore:
         def score(spin: torch.Tensor) -> SpinScore:
             return score_shape(window, start, spin, render_config, config.shape_texture)
 
-        return search_spin(grid, score, refine)[0]
+        return search_spin(grid, score, refine, known)[0]
 
     scores = {name: search(start, near, ()) for name, start in starts.items()}
     if config.spin_magnitudes and window.fit_config.max_rotation_deg > 0:
         # Shapes far behind at the seeds' spins are not searched further: a capsule for a ball
         # stays 5 times the sphere's residual at any spin.
         best_near = min(s.residual for s in scores.values())
-        coarse = torch.cat((near, spin_grid(config.spin_magnitudes, config.shape_spin_axes)[1:].to(near)))
+        coarse = spin_grid(config.spin_magnitudes, config.shape_spin_axes)[1:].to(near)
         for name, start in starts.items():
             if scores[name].residual < SHAPE_PRUNE * best_near or name == "sphere":
-                scores[name] = search(start, coarse, config.spin_refine[:1])
+                # The seeds' spins were scored above: their best stands in for them.
+                scores[name] = search(start, coarse, config.spin_refine[:1], (scores[name],))
     sphere = scores["sphere"].residual
     weighed = {n: s.residual / (1.0 if n == "sphere" else 1 - config.shape_margin) for n, s in scores.items()}
     ranked = sorted(weighed, key=weighed.__getitem__)

@@ -98,3 +98,20 @@ def test_the_residual_is_lowest_at_the_true_spin() -> None:
     best, scored = search_spin(spin_grid((35.0, 70.0), 20), score, (15.0, 7.5))
     assert scored > 41
     assert math.degrees(float((best.spin - TRUE_SPIN).norm())) < 10.0
+
+
+def test_a_known_score_is_not_scored_again_and_can_win() -> None:
+    # The shape trial hands its first pass's best in: the grid after it must not score it again,
+    # and where nothing in the grid beats it, it is the answer.
+    calls: list[torch.Tensor] = []
+
+    def score(spin: torch.Tensor) -> SpinScore:
+        calls.append(spin)
+        return SpinScore(spin, float(spin.norm()) + 1.0, torch.zeros(3, 2, 2))
+
+    known = SpinScore(torch.zeros(3), 0.5, torch.ones(3, 2, 2))
+    grid = spin_grid((30.0,), 6)[1:]
+    best, scored = search_spin(grid, score, (), (known,))
+    assert best is known and scored == len(grid) == len(calls)
+    worse = SpinScore(torch.zeros(3), 9.0, torch.ones(3, 2, 2))
+    assert search_spin(grid, score, (), (worse,))[0] is not worse
