@@ -431,7 +431,12 @@ class Recorder(AtomicOutput):
         )
         # On the parent, so that the Clear of a frame without a mask cannot touch it; the mask finds
         # its class colours there.
-        classes = [(MASK_CLASS, "object", (255, 64, 64)), (SUBFRAME_MASK_CLASS, "sub-frame mask", (64, 160, 255))]
+        # Class 0 needs its own colour, transparent: left out, the viewer tints the whole frame.
+        classes = [
+            (0, "", (0, 0, 0, 0)),
+            (MASK_CLASS, "object", (255, 64, 64)),
+            (SUBFRAME_MASK_CLASS, "sub-frame mask", (64, 160, 255)),
+        ]
         self._log("world/camera/image", rr.AnnotationContext(classes), static=True)
 
     def _log_sources(self) -> None:

@@ -216,7 +216,10 @@ def test_images_are_jpeg_and_masks_are_not(recorded: Recorded) -> None:
     buffer = one_at(recorded.chunks, "/world/camera/image/mask", "SegmentationImage:buffer", "frame", 0)
     ids = np.frombuffer(bytes(buffer), dtype=np.uint8).reshape(CAMERA.height, CAMERA.width)
     assert np.array_equal(ids, recorded.inputs.mask.numpy().astype(np.uint8))
-    assert rows(recorded.chunks, "/world/camera/image", "AnnotationContext:context", None)  # names class 1
+    ((_, (context,)),) = rows(recorded.chunks, "/world/camera/image", "AnnotationContext:context", None)
+    colours = {c["class_id"]: c["class_description"]["info"]["color"] for c in context}
+    # RGBA packed: pixels outside the mask (class 0) are fully transparent, the mask's class is not.
+    assert colours[0] & 0xFF == 0 and colours[1] & 0xFF == 255
 
 
 def test_detection_box_and_a_frame_without_one_clears_it(recorded: Recorded) -> None:
