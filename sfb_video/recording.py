@@ -229,7 +229,8 @@ class Recorder(AtomicOutput):
             reconstruction: (3, H, W) full-frame I_hat in [0, 1].
             subframes: the n full-frame TSR sub-frames (3, H, W) in [0, 1] (a tensor (n, 3, H, W)
                 or a sequence that makes them one at a time), at ``index * n + k`` on the
-                subframe timeline; or one, shown for the whole frame (a frame without a fit).
+                subframe timeline, the middle one at ``index`` on the frame timeline too; or
+                one, shown for the whole frame (a frame without a fit).
         """
         self._check_image(reconstruction, "reconstruction")
         if isinstance(subframes, torch.Tensor):
@@ -242,7 +243,9 @@ class Recorder(AtomicOutput):
         for k in range(n):
             sub = subframes[k]
             self._check_image(sub, "subframe")
-            self._at(subframe=index * self.subframes + k)
+            # The middle one stands for its frame on the frame timeline, where the object's pose
+            # is the mid-exposure one: without it the super-resolved panel was empty there.
+            self._at(frame=index if k == n // 2 else None, subframe=index * self.subframes + k)
             self._log("tsr", _jpeg(sub))
 
     @timed("recording")

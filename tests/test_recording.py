@@ -244,12 +244,25 @@ def test_pinhole_matches_the_camera(recorded: Recorded) -> None:
     assert rows(recorded.chunks, "/world", "ViewCoordinates:xyz", None)
 
 
-def test_tsr_has_n_rows_per_fitted_frame_on_the_subframe_timeline_only(recorded: Recorded) -> None:
+def test_tsr_has_n_rows_per_fitted_frame_and_its_middle_one_on_the_frame_timeline(recorded: Recorded) -> None:
     # A frame without a fit shows the frame itself from its first sub-frame on, not the sub-frame
     # before it.
     expected = sorted([i * N_SUB + k for i in FITTED for k in range(N_SUB)] + [1 * N_SUB])
     assert times(recorded.chunks, "/tsr", "EncodedImage:blob", "subframe") == expected
-    assert not times(recorded.chunks, "/tsr", "EncodedImage:blob", "frame")
+    assert times(recorded.chunks, "/tsr", "EncodedImage:blob", "frame") == [0, 1, 2]
+    # On the frame timeline each frame's row is its middle sub-frame (mid-exposure, as the pose).
+    stamped = [
+        (f, s)
+        for chunk in recorded.chunks
+        if chunk.entity_path == "/tsr" and "frame" in chunk.timeline_names
+        for f, s in zip(
+            chunk.to_record_batch().column("frame").to_pylist(),
+            chunk.to_record_batch().column("subframe").to_pylist(),
+            strict=True,
+        )
+        if f is not None
+    ]
+    assert sorted(stamped) == [(0, N_SUB // 2), (1, N_SUB), (2, 2 * N_SUB + N_SUB // 2)]
 
 
 def test_what_is_logged_once_a_frame_shows_on_the_subframe_timeline_too(recorded: Recorded) -> None:
@@ -552,8 +565,10 @@ def test_the_recording_opens_on_a_layout_of_what_a_person_comes_to_see(recorded:
         "3D": "/world/track_00/object",
         "track 0": "/losses/track_00/total",
     }
+    # And on the frame timeline, the other one a person switches to.
     for name in shown:
-        assert any(c.entity_path == content[name] and "subframe" in c.timeline_names for c in recorded.chunks), name
+        for timeline in ("subframe", "frame"):
+            assert any(c.entity_path == content[name] and timeline in c.timeline_names for c in recorded.chunks), name
     assert any(c.entity_path.startswith("/fit/") and "step" in c.timeline_names for c in recorded.chunks)
     for entity in ("/run/masks", "/run/summary", "/run/config"):
         assert rows(recorded.chunks, entity, "TextDocument:text", None), entity
