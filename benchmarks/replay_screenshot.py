@@ -10,7 +10,8 @@ viewer needs WebGL2, which SwiftShader gives a headless Chromium.
 
 writes ``OUT_PREFIX_open.png`` once the viewer has drawn, then for each ``name`` clicks the
 points in turn (the viewer draws on a canvas: there is no DOM to query) and writes
-``OUT_PREFIX_name.png``.
+``OUT_PREFIX_name.png``. Clicks on the timeline menu did not take: for the frame and step
+timelines, serve the copies ``benchmarks/replay_timelines.py`` writes.
 """
 
 from __future__ import annotations
@@ -56,7 +57,13 @@ def main(url: str, prefix: str, steps: list[str]) -> None:
             name, clicks = step.split(":")
             for point in clicks.split(";"):
                 x, y = (float(v) for v in point.split(","))
-                page.mouse.click(x, y)
+                # The viewer reads the pointer once a frame, and SwiftShader draws few frames a
+                # second: a click whose press and release fall in one frame is lost.
+                page.mouse.move(x, y)
+                time.sleep(1)
+                page.mouse.down()
+                time.sleep(0.5)
+                page.mouse.up()
                 time.sleep(2)
             time.sleep(4)
             page.screenshot(path=f"{prefix}_{name}.png")

@@ -476,7 +476,7 @@ def _eval_on_ray(
 def cmd_replay(args: argparse.Namespace) -> int:
     from sfb_video.replay import replay
 
-    return replay(Path(args.run), web=args.web, web_port=args.web_port, grpc_port=args.grpc_port, bind=args.bind)
+    return replay(Path(args.run), web=args.web, web_port=args.web_port, data_port=args.data_port, bind=args.bind)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -582,7 +582,9 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("run", help="a run folder or a .rrd file")
     replay.add_argument("--web", action="store_true", help="serve rerun's web viewer from this machine (no display)")
     replay.add_argument("--web-port", type=int, default=9090, help="port of the web viewer's page (with --web)")
-    replay.add_argument("--grpc-port", type=int, default=9876, help="port the recording streams from (with --web)")
+    replay.add_argument(
+        "--data-port", type=int, default=9876, help="port the recording file is served from (with --web)"
+    )
     replay.add_argument(
         "--bind", default="127.0.0.1", help="address to serve on (with --web; 0.0.0.0: every address, the network too)"
     )

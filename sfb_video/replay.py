@@ -3,14 +3,19 @@ this machine for machines without a display (a server, a container, SSH).
 
 The viewer is the one installed with this package's rerun-sdk: the binary in its ``rerun_cli``
 package (so a virtual environment need not be activated), else a ``rerun`` on PATH. ``--web``
-runs ``rerun --serve-web``: an HTTP server for the viewer's page and a gRPC server that streams
-the recording to it, in a process group of its own that is stopped with this command, whatever
-stops it (Ctrl-C, SIGTERM). Both listen on this machine only (127.0.0.1) unless ``--bind`` opens
-them to the network, and the address is printed once both answer.
+runs ``rerun --serve-web`` for the viewer's page, in a process group of its own that is stopped
+with this command, whatever stops it (Ctrl-C, SIGTERM), and serves the recording file itself over
+plain HTTP from this process, for the page to fetch: handed the file, rerun's own server kept a
+core busy for as long as it served, with no page open. Both listen on this machine only
+(127.0.0.1) unless ``--bind`` opens them to the network, and the address is printed once both
+answer.
 """
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import http.server
 import importlib.util
 import os
 import shutil
@@ -19,7 +24,9 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 from urllib.parse import quote
@@ -29,8 +36,10 @@ from sfb_video.run_folder import RECORDING
 
 WEB_PORT = 9090
 """Where the web viewer's page is served (rerun's default)."""
-GRPC_PORT = 9876
-"""Where the recording is streamed to the page (rerun's default)."""
+DATA_PORT = 9876
+"""Where the recording file is served to the page."""
+SERVED_NAME = "recording.rrd"
+"""The recording's name in its URL, whatever the run calls it."""
 LOCAL = "127.0.0.1"
 """The default ``--bind``: this machine only. A run shows the clip and whatever it filmed."""
 EVERY_ADDRESS = ("0.0.0.0", "::")
@@ -122,23 +131,23 @@ def _last_error(log: IO[bytes]) -> str:
     return lines[-1].strip() if lines else "no message"
 
 
-def served_message(path: Path, bind: str, web_port: int, grpc_port: int) -> str:
+def served_message(path: Path, bind: str, web_port: int, data_port: int) -> str:
     """What ``--web`` prints once the viewer answers: the address to open and who can open it."""
     if bind in EVERY_ADDRESS:
         name = socket.gethostname()
         return (
             f"serving {path} in rerun's web viewer on every address of this machine (--bind {bind}):\n"
-            f"  here, open {web_url('localhost', web_port, grpc_port)}\n"
-            f"  from another machine, {web_url(name, web_port, grpc_port)} (or its IP address for {name})\n"
+            f"  here, open {web_url('localhost', web_port, data_port)}\n"
+            f"  from another machine, {web_url(name, web_port, data_port)} (or its IP address for {name})\n"
             "(Ctrl-C stops)"
         )
     if bind in (LOCAL, "localhost", "::1"):
         return (
             f"serving {path} in rerun's web viewer on this machine only ({bind}): "
-            f"open {web_url('localhost', web_port, grpc_port)}\n"
-            f"(--bind 0.0.0.0 opens it to the network, or forward ports {web_port} and {grpc_port}; Ctrl-C stops)"
+            f"open {web_url('localhost', web_port, data_port)}\n"
+            f"(--bind 0.0.0.0 opens it to the network, or forward ports {web_port} and {data_port}; Ctrl-C stops)"
         )
-    url = web_url(bind, web_port, grpc_port)
+    url = web_url(bind, web_port, data_port)
     return f"serving {path} in rerun's web viewer on {bind} only: open {url}\n(Ctrl-C stops)"
 
 
@@ -146,12 +155,69 @@ def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def web_url(host: str, web_port: int, grpc_port: int) -> str:
-    """The address that opens the web viewer on the recording served at ``grpc_port``."""
-    return f"http://{host}:{web_port}/?url=" + quote(f"rerun+http://{host}:{grpc_port}/proxy", safe="")
+def web_url(host: str, web_port: int, data_port: int) -> str:
+    """The address that opens the web viewer on the recording served at ``data_port``."""
+    return f"http://{host}:{web_port}/?url=" + quote(data_url(host, data_port), safe="")
 
 
-def replay(run: Path, *, web: bool, web_port: int = WEB_PORT, grpc_port: int = GRPC_PORT, bind: str = LOCAL) -> int:
+def data_url(host: str, data_port: int) -> str:
+    """The recording file's address, as the viewer's page fetches it."""
+    return f"http://{host}:{data_port}/{SERVED_NAME}"
+
+
+class _RecordingHandler(http.server.BaseHTTPRequestHandler):
+    """Answers GET /recording.rrd with the one file, and nothing else."""
+
+    def __init__(self, *args: object, path: Path, **kwargs: object) -> None:
+        self.path_served = path
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+
+    def do_GET(self) -> None:
+        if self.path.split("?")[0] != f"/{SERVED_NAME}":
+            self.send_error(404)
+            return
+        try:
+            data = self.path_served.open("rb")
+        except OSError:
+            self.send_error(404)
+            return
+        with data:
+            self.send_response(200)
+            self.send_header("Content-Type", "application/octet-stream")
+            self.send_header("Content-Length", str(os.fstat(data.fileno()).st_size))
+            # The page comes from the viewer's port: another origin, which the browser checks.
+            self.send_header("Access-Control-Allow-Origin", "*")
+            self.end_headers()
+            with contextlib.suppress(BrokenPipeError, ConnectionResetError):  # the page closed while it loaded
+                shutil.copyfileobj(data, self.wfile)
+
+    def log_message(self, format: str, *args: object) -> None:
+        pass  # a line per request would bury the address printed
+
+
+@contextlib.contextmanager
+def _serving_file(path: Path, bind: str, port: int) -> Iterator[None]:
+    """Serve ``path`` at ``/recording.rrd`` on ``bind``:``port`` from a thread, until the block ends."""
+
+    class Server(http.server.ThreadingHTTPServer):
+        address_family = socket.AF_INET6 if ":" in bind else socket.AF_INET
+        daemon_threads = True
+
+    try:
+        server = Server((bind, port), functools.partial(_RecordingHandler, path=path))
+    except OSError as error:
+        raise SfbError(f"cannot serve the recording on {bind} port {port}: {error.strerror}") from None
+    thread = threading.Thread(target=server.serve_forever, name="sfb-video recording server", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join()
+
+
+def replay(run: Path, *, web: bool, web_port: int = WEB_PORT, data_port: int = DATA_PORT, bind: str = LOCAL) -> int:
     """Open the recording of ``run``; with ``web``, serve it on ``bind`` until interrupted.
     Returns the exit status.
 
@@ -168,29 +234,31 @@ def replay(run: Path, *, web: bool, web_port: int = WEB_PORT, grpc_port: int = G
             )
         return subprocess.call([*command, str(path)])
     _check_port(web_port, bind, "--web-port")
-    _check_port(grpc_port, bind, "--grpc-port")
-    server = [*command, "--serve-web", "--bind", bind, "--web-viewer-port", str(web_port), "--port", str(grpc_port)]
+    _check_port(data_port, bind, "--data-port")
+    # Given a URL it can open itself, rerun serves only the page (no gRPC server of its own).
+    here = LOCAL if bind in EVERY_ADDRESS else bind
+    server = [*command, "--serve-web", "--bind", bind, "--web-viewer-port", str(web_port), data_url(here, data_port)]
     # The viewer's own log lines (telemetry, analytics notices) would bury the address we print;
     # a file, not a pipe, keeps them for the error message: a pipe nobody reads while the viewer
     # serves would stop it once full.
-    with tempfile.TemporaryFile() as log:
-        process = subprocess.Popen([*server, str(path)], stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
-        status = _serve_until_stopped(process, log, bind, web_port, grpc_port, path)
+    with tempfile.TemporaryFile() as log, _serving_file(path, bind, data_port):
+        process = subprocess.Popen(server, stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
+        status = _serve_until_stopped(process, log, bind, web_port, data_port, path)
         if status != 0:
             raise SfbError(f"the rerun web viewer stopped: {_last_error(log)}")
     return 0
 
 
 def _serve_until_stopped(
-    process: subprocess.Popen[bytes], log: IO[bytes], bind: str, web_port: int, grpc_port: int, path: Path
+    process: subprocess.Popen[bytes], log: IO[bytes], bind: str, web_port: int, data_port: int, path: Path
 ) -> int:
     """Wait for the viewer to answer, print where, and wait for it to stop (or for Ctrl-C or
     SIGTERM, which stop it). Returns its exit status, 0 when this command stopped it."""
     stop_on_sigterm = signal.signal(signal.SIGTERM, _interrupt)
     try:
         # An address printed before its ports listen opens on "connection refused".
-        _wait_until_served(process, log, LOCAL if bind in EVERY_ADDRESS else bind, (grpc_port, web_port))
-        print(served_message(path, bind, web_port, grpc_port), flush=True)
+        _wait_until_served(process, log, LOCAL if bind in EVERY_ADDRESS else bind, (data_port, web_port))
+        print(served_message(path, bind, web_port, data_port), flush=True)
         return process.wait()
     except KeyboardInterrupt:
         return 0

@@ -1,12 +1,15 @@
 """``sfb-video replay``: the viewer installed beside this Python is found without PATH, a machine
 without a display gets one line pointing to ``--web``, and ``--web`` serves the viewer's page and
-streams the recording to it."""
+the recording file for it, on this machine only unless asked."""
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
+import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 
@@ -16,11 +19,8 @@ import torch
 import sfb_video.replay
 from sfb_video.cli import main
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.recording import APPLICATION_ID, Recorder
+from sfb_video.recording import Recorder
 from sfb_video.replay import viewer_command
-
-# The gRPC-web call the web viewer makes to read the recording it is served.
-READ_MESSAGES = "rerun.sdk_comms.v1alpha1.MessageProxyService/ReadMessages"
 
 
 @pytest.fixture(scope="module")
@@ -76,17 +76,17 @@ def _listening(port: int) -> set[str]:
 
 def _serve(run: Path, *options: str) -> tuple[subprocess.Popen[str], int, int, str]:
     """Start ``replay --web`` and wait for the line it prints once served (its first)."""
-    web, grpc = _free_port(), _free_port()
+    web, data = _free_port(), _free_port()
     command = [sys.executable, "-m", "sfb_video.cli", "replay", str(run), "--web"]
-    command += ["--web-port", str(web), "--grpc-port", str(grpc), *options]
+    command += ["--web-port", str(web), "--data-port", str(data), *options]
     server = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert server.stdout is not None
     line = server.stdout.readline()
     assert line, server.communicate(timeout=30)[1]
-    return server, web, grpc, line
+    return server, web, data, line
 
 
-def _stop(server: subprocess.Popen[str], grpc: int) -> str:
+def _stop(server: subprocess.Popen[str], data: int) -> str:
     server.terminate()  # SIGTERM, as a service manager or a shell's kill stops it
     assert server.stdout is not None
     out = server.stdout.read()  # through the file: _serve's readline left the rest in its buffer
@@ -94,47 +94,66 @@ def _stop(server: subprocess.Popen[str], grpc: int) -> str:
     # The viewer's server stopped with the command: its port is free again.
     with socket.socket() as probe:
         probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        probe.bind(("127.0.0.1", grpc))
+        probe.bind(("127.0.0.1", data))
     return out
 
 
 def test_web_serves_the_viewer_on_this_machine_only_once_it_answers(run: Path) -> None:
-    server, web, grpc, line = _serve(run)
+    server, web, data, line = _serve(run)
     try:
         # The address is printed once both ports answer: open at once, the page is there.
         with urllib.request.urlopen(f"http://127.0.0.1:{web}/", timeout=2) as response:
             page = (response.status, response.headers.get("content-type"), response.read())
         assert page[0] == 200 and "text/html" in page[1] and b"<html" in page[2].lower()
-        request = urllib.request.Request(
-            f"http://127.0.0.1:{grpc}/{READ_MESSAGES}",
-            data=b"\0\0\0\0\0",  # one empty gRPC message: read everything
-            headers={"content-type": "application/grpc-web+proto", "x-grpc-web": "1"},
-        )
-        streamed = b""
-        with urllib.request.urlopen(request, timeout=10) as response:
-            while APPLICATION_ID.encode() not in streamed or b"world/camera" not in streamed:
-                chunk = response.read1(1 << 16)
-                if not chunk:
-                    break
-                streamed += chunk
-        assert APPLICATION_ID.encode() in streamed and b"world/camera" in streamed
+        # And the recording the URL points the page to, readable from the page's origin.
+        with urllib.request.urlopen(f"http://127.0.0.1:{data}/recording.rrd", timeout=10) as response:
+            assert response.headers.get("access-control-allow-origin") == "*"
+            assert response.read() == (run / "recording.rrd").read_bytes()
+        with pytest.raises(urllib.error.HTTPError, match="404"):
+            urllib.request.urlopen(f"http://127.0.0.1:{data}/../recording.rrd", timeout=10)
         if Path("/proc/net/tcp").is_file():
-            assert _listening(web) == _listening(grpc) == {"0100007F"}  # 127.0.0.1, not the network
+            assert _listening(web) == _listening(data) == {"0100007F"}  # 127.0.0.1, not the network
     finally:
-        out = _stop(server, grpc)
-    assert f"http://localhost:{web}/?url=rerun%2Bhttp%3A%2F%2Flocalhost%3A{grpc}%2Fproxy" in line
+        out = _stop(server, data)
+    assert f"http://localhost:{web}/?url=http%3A%2F%2Flocalhost%3A{data}%2Frecording.rrd" in line
     assert "this machine only" in line and "another machine" not in line + out
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads the viewer's CPU time from Linux's /proc")
+def test_the_viewer_idles_while_no_page_is_open(run: Path) -> None:
+    # Handed the file, rerun's own server spun a core for as long as it served (measured: 100%).
+    server, _, data, _ = _serve(run)
+    try:
+        (viewer,) = [p for p in Path("/proc").glob("[0-9]*") if _is_viewer_of(p, server.pid)]
+        before = _cpu_seconds(viewer)
+        time.sleep(3.0)
+        assert _cpu_seconds(viewer) - before < 0.5  # busy, it would be 3 s
+    finally:
+        _stop(server, data)
+
+
+def _is_viewer_of(process: Path, parent: int) -> bool:
+    try:
+        fields = (process / "stat").read_text().rsplit(")", 1)[1].split()
+        return int(fields[1]) == parent and "serve-web" in (process / "cmdline").read_text()
+    except (OSError, IndexError, ValueError):
+        return False
+
+
+def _cpu_seconds(process: Path) -> float:
+    fields = (process / "stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
 
 
 @pytest.mark.skipif(not Path("/proc/net/tcp").is_file(), reason="reads the listening sockets from Linux's /proc/net")
 def test_bind_opens_the_viewer_to_the_network_and_says_so(run: Path) -> None:
-    server, web, grpc, line = _serve(run, "--bind", "0.0.0.0")
+    server, web, data, line = _serve(run, "--bind", "0.0.0.0")
     try:
-        assert _listening(web) and _listening(grpc) and "0100007F" not in _listening(web) | _listening(grpc)
+        assert _listening(web) and _listening(data) and "0100007F" not in _listening(web) | _listening(data)
         with urllib.request.urlopen(f"http://127.0.0.1:{web}/", timeout=2) as response:
             assert response.status == 200
     finally:
-        out = _stop(server, grpc)
+        out = _stop(server, data)
     assert "on every address of this machine (--bind 0.0.0.0)" in line
     assert f"from another machine, http://{socket.gethostname()}:{web}/" in out
 
@@ -156,8 +175,8 @@ def test_a_viewer_that_fails_after_much_logging_is_one_line_with_its_error(
     chatty = "import sys; sys.stderr.write('telemetry notice\\n' * 20000 + 'Error: no GPU adapter\\n'); sys.exit(1)"
     monkeypatch.setattr(sfb_video.replay, "viewer_command", lambda: [sys.executable, "-c", chatty])
     monkeypatch.setattr(sfb_video.replay, "START_TIMEOUT_S", 20.0)
-    web, grpc = _free_port(), _free_port()
-    assert main(["replay", str(run), "--web", "--web-port", str(web), "--grpc-port", str(grpc)]) == 2
+    web, data = _free_port(), _free_port()
+    assert main(["replay", str(run), "--web", "--web-port", str(web), "--data-port", str(data)]) == 2
     err = capsys.readouterr().err
     assert "stopped before it served: Error: no GPU adapter" in err
     assert len(err.strip().splitlines()) == 1
