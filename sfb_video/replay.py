@@ -105,23 +105,19 @@ def _answers(host: str, port: int) -> bool:
         return False
 
 
-def _wait_until_served(process: subprocess.Popen[bytes], log: IO[bytes], host: str, ports: tuple[int, ...]) -> None:
-    """Return once every port answers on ``host``; ``log`` is where the viewer writes its stderr.
+def _wait_until_served(process: subprocess.Popen[bytes], log: IO[bytes], host: str, port: int) -> None:
+    """Return once ``port`` answers on ``host``; ``log`` is where the viewer writes its stderr.
 
     Raises:
         SfbError: the viewer stopped first, or did not answer within :data:`START_TIMEOUT_S`.
     """
     deadline = time.monotonic() + START_TIMEOUT_S
-    waiting = list(ports)
-    while waiting:
+    while not _answers(host, port):
         if process.poll() is not None:
             raise SfbError(f"the rerun web viewer stopped before it served: {_last_error(log)}")
         if time.monotonic() > deadline:
-            raise SfbError(f"the rerun web viewer did not answer on port {waiting[0]} within {START_TIMEOUT_S:.0f} s")
-        if _answers(host, waiting[0]):
-            waiting.pop(0)
-        else:
-            time.sleep(0.1)
+            raise SfbError(f"the rerun web viewer did not answer on port {port} within {START_TIMEOUT_S:.0f} s")
+        time.sleep(0.1)
 
 
 def _last_error(log: IO[bytes]) -> str:
@@ -243,22 +239,22 @@ def replay(run: Path, *, web: bool, web_port: int = WEB_PORT, data_port: int = D
     # serves would stop it once full.
     with tempfile.TemporaryFile() as log, _serving_file(path, bind, data_port):
         process = subprocess.Popen(server, stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
-        status = _serve_until_stopped(process, log, bind, web_port, data_port, path)
+        # The recording's server listens already (bound above): only the viewer's port is awaited.
+        status = _serve_until_stopped(process, log, here, web_port, served_message(path, bind, web_port, data_port))
         if status != 0:
             raise SfbError(f"the rerun web viewer stopped: {_last_error(log)}")
     return 0
 
 
-def _serve_until_stopped(
-    process: subprocess.Popen[bytes], log: IO[bytes], bind: str, web_port: int, data_port: int, path: Path
-) -> int:
-    """Wait for the viewer to answer, print where, and wait for it to stop (or for Ctrl-C or
-    SIGTERM, which stop it). Returns its exit status, 0 when this command stopped it."""
+def _serve_until_stopped(process: subprocess.Popen[bytes], log: IO[bytes], host: str, port: int, message: str) -> int:
+    """Wait for the viewer to answer on ``host``:``port``, print ``message``, and wait for it to
+    stop (or for Ctrl-C or SIGTERM, which stop it). Returns its exit status, 0 when this command
+    stopped it."""
     stop_on_sigterm = signal.signal(signal.SIGTERM, _interrupt)
     try:
-        # An address printed before its ports listen opens on "connection refused".
-        _wait_until_served(process, log, LOCAL if bind in EVERY_ADDRESS else bind, (data_port, web_port))
-        print(served_message(path, bind, web_port, data_port), flush=True)
+        # An address printed before its port listens opens on "connection refused".
+        _wait_until_served(process, log, host, port)
+        print(message, flush=True)
         return process.wait()
     except KeyboardInterrupt:
         return 0
