@@ -5,8 +5,9 @@ scripted clicks did not reach, so the timeline is switched in the layout itself.
     python -m benchmarks.replay_timelines RUN OUT_DIR     # writes OUT_DIR/frame.rrd, step.rrd
     sfb-video replay OUT_DIR/frame.rrd --web
 
-Each copy is the recording followed by a blueprint stream (rerun reads concatenated streams;
-the last blueprint wins: one served beside the recording as a separate ``.rbl`` did not).
+Each copy is the recording followed by a blueprint stream (the viewer reads concatenated streams,
+rerun-sdk's RrdReader does not; the last blueprint wins: a separate ``.rbl`` served beside the
+recording did not).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import argparse
 import csv
 import tempfile
 from collections import defaultdict
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -26,18 +28,12 @@ from sfb_video.run_folder import RECORDING
 TIMELINES = ("frame", "step")
 
 
-def _tabs(part: rrb.Container) -> rrb.Container:
-    """The layout's one tab container."""
-    if part.kind == rrb.components.ContainerKind.Tabs:
-        return part
-    (found,) = [_tabs(c) for c in part.contents if isinstance(c, rrb.Container) and _has_tabs(c)]
-    return found
-
-
-def _has_tabs(part: rrb.Container) -> bool:
-    return part.kind == rrb.components.ContainerKind.Tabs or any(
-        _has_tabs(c) for c in part.contents if isinstance(c, rrb.Container)
-    )
+def _containers(part: rrb.Container) -> Iterator[rrb.Container]:
+    """``part`` and every container inside it."""
+    yield part
+    for inner in part.contents:
+        if isinstance(inner, rrb.Container):
+            yield from _containers(inner)
 
 
 def main() -> None:
@@ -54,18 +50,20 @@ def main() -> None:
             points[int(row["track"])].append([float(row[c]) for c in ("x", "y", "z")])
             subframes = max(subframes, int(row["subframe"]) + 1)
     tracks = sorted(points)
+    recording = (args.run / RECORDING).read_bytes()
     args.out.mkdir(parents=True, exist_ok=True)
     for timeline in TIMELINES:
         blueprint = layout(tracks, [np.array(points[t]) for t in tracks], subframes)
         blueprint.time_panel = rrb.TimePanel(timeline=timeline, state="expanded")
         if timeline == "step":
             # Only the fits' curves are on the step timeline: open their tab (after the tracks').
-            _tabs(blueprint.root_container).active_tab = len(tracks)
+            (tabs,) = [c for c in _containers(blueprint.root_container) if c.kind == rrb.components.ContainerKind.Tabs]
+            tabs.active_tab = len(tracks)
         with tempfile.TemporaryDirectory() as scratch:
             saved = Path(scratch) / "layout.rbl"
             blueprint.save(APPLICATION_ID, saved)
             copy = args.out / f"{timeline}.rrd"
-            copy.write_bytes((args.run / RECORDING).read_bytes() + saved.read_bytes())
+            copy.write_bytes(recording + saved.read_bytes())
         print(copy)
 
 

@@ -132,16 +132,20 @@ def test_the_viewer_idles_while_no_page_is_open(run: Path) -> None:
         _stop(server, data)
 
 
+def _stat(process: Path) -> list[str]:
+    """The fields of /proc/PID/stat after the command's name (state, ppid, ...)."""
+    return (process / "stat").read_text().rsplit(")", 1)[1].split()
+
+
 def _is_viewer_of(process: Path, parent: int) -> bool:
     try:
-        fields = (process / "stat").read_text().rsplit(")", 1)[1].split()
-        return int(fields[1]) == parent and "serve-web" in (process / "cmdline").read_text()
+        return int(_stat(process)[1]) == parent and "serve-web" in (process / "cmdline").read_text()
     except (OSError, IndexError, ValueError):
         return False
 
 
 def _cpu_seconds(process: Path) -> float:
-    fields = (process / "stat").read_text().rsplit(")", 1)[1].split()
+    fields = _stat(process)
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
 
 
