@@ -25,7 +25,7 @@ part() {  # part NAME SECONDS COMMAND...: one part, its log in $out/NAME.log
 }
 
 "$py" -c "import torch; assert torch.cuda.is_available(), 'no CUDA device'; print(torch.cuda.get_device_name(0), torch.__version__)" || exit 1
-part tests 150 "$py" -m pytest -q -p no:cacheprovider -x --device cuda tests/test_device.py tests/render
+part tests 150 "$py" -m pytest -q -p no:cacheprovider --device cuda tests/test_device.py tests/render
 part pipeline 200 "$py" -m benchmarks.pipeline --device cuda
 part render 60 "$py" -m benchmarks.render --device cuda --repeats 10
 part video 150 "$py" -m benchmarks.video --device cuda --frames 6
