@@ -109,12 +109,14 @@ def with_neighbours(
 
     Two frames apart, not one: an FMO's streaks in consecutive frames can overlap (it moves
     little more than its size while the shutter is open), but never two frames apart, while a
-    slow mover still covers much the same pixels. At a clip's ends only the side that has a frame
-    two away is used (the adjacent frame's streak would cut off this one's end); only a clip of
+    slow mover still covers much the same pixels. At a clip's ends only one side has a frame two
+    away (the adjacent frame's streak would cut off this one's end), and the frame three away on
+    that side joins it: one frame alone drops whatever passes there two frames later, as an
+    object following another along its path does, while a slow mover covers both. Only a clip of
     three frames or fewer falls back on the adjacent frames.
     """
-    history: deque[tuple[FrameWithBackground, torch.Tensor]] = deque(maxlen=2)  # frames t - 2, t - 1
-    ahead: deque[tuple[FrameWithBackground, torch.Tensor]] = deque()  # frame t and up to two after
+    history: deque[tuple[FrameWithBackground, torch.Tensor]] = deque(maxlen=3)  # frames t - 3 .. t - 1
+    ahead: deque[tuple[FrameWithBackground, torch.Tensor]] = deque()  # frame t and up to three after
 
     def emit() -> tuple[FrameWithBackground, torch.Tensor, list[Neighbour]]:
         frame, mask = ahead.popleft()
@@ -134,12 +136,15 @@ def with_neighbours(
                 return mask_onto_next(other[0], other[1])
             return None
 
-        after = [f for f in ahead if kin(f)]
-        earlier = [m for m in map(earlier_mask, history) if m is not None]
-        before = [earlier[0]] if len(earlier) == 2 else []
-        later = [after[1]] if len(after) == 2 else []
+        after = [f for f in ahead if kin(f)]  # frames t + 1 .. t + 3
+        earlier = [m for m in map(earlier_mask, history) if m is not None][::-1]  # frames t - 1 .. t - 3
+        before, later = earlier[1:2], after[1:2]
         if not before and not later:  # a clip of three frames or fewer
-            before, later = ([earlier[-1]] if earlier else []), after[:1]
+            before, later = earlier[:1], after[:1]
+        elif not later:
+            before = earlier[1:3]
+        elif not before:
+            later = after[1:3]
         history.append((frame, mask))
         # Only what still shows in a later frame is a scene change: a track that passes the same
         # place twice (a circular swing) shows the object where an earlier frame had it.
@@ -154,7 +159,7 @@ def with_neighbours(
 
     for frame in frames:
         ahead.append((frame, difference_mask(frame.pixels, frame.background_pixels, config.detect, frame.known)))
-        if len(ahead) == 3:
+        if len(ahead) == 4:
             yield emit()
     while ahead:
         yield emit()

@@ -55,8 +55,20 @@ def _neighbours(count: int) -> dict[int, list[int]]:
 
 
 def test_the_neighbours_are_two_frames_away_and_never_adjacent_where_the_clip_is_long_enough() -> None:
-    # An adjacent frame's streak can overlap this one's end and would cut it off.
-    assert _neighbours(8) == {0: [2], 1: [3], 2: [0, 4], 3: [-1, 5], 4: [-2, 6], 5: [-3, 7], 6: [-4], 7: [-5]}
+    # An adjacent frame's streak can overlap this one's end and would cut it off; at the clip's
+    # ends the frame three away joins the one two away, so that one frame alone (where an object
+    # following on the same path passes) does not decide what is slow.
+    assert _neighbours(8) == {
+        0: [2, 3],
+        1: [3, 4],
+        2: [0, 4],
+        3: [-1, 5],
+        4: [-2, 6],
+        5: [-3, 7],
+        6: [-4, -3],
+        7: [-5, -4],
+    }
+    assert _neighbours(4) == {0: [2, 3], 1: [3], 2: [0], 3: [-1, 0]}
     assert _neighbours(3) == {0: [2], 1: [0, 2], 2: [0]}
     assert _neighbours(2) == {0: [1], 1: [0]}
 
