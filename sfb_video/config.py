@@ -238,7 +238,7 @@ class JointConfig(_Checked):
     """Frames per window; a track's windows slide by ``window - overlap``."""
     overlap: int = bounded(2, ge=0)
     """Frames a window shares with the previous one of its track."""
-    iterations: int = bounded(300, ge=1)
+    iterations: int = bounded(200, ge=1)
     """Adam steps of a window's joint fit."""
     frames_per_step: int = bounded(3, ge=0)
     """Frames of the window each step renders, in turn (every frame seen every few steps); 0: all."""
