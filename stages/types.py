@@ -7,6 +7,7 @@ importing the stage that makes them.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,6 +95,14 @@ class FrameWithBackground:
     def background(self) -> torch.Tensor:
         """(3, H, W) float32 in [0, 1] (made on each access from compact pixels)."""
         return as_float(self.background_pixels)
+
+    def without(self, region: torch.Tensor) -> FrameWithBackground:
+        """This frame with its (H, W) bool ``region`` showing the background: other objects'
+        pixels, which a fit of this one should not try to explain."""
+        pixels, background = self.pixels, self.background_pixels
+        if pixels.dtype != background.dtype:
+            pixels, background = as_float(pixels), as_float(background)
+        return dataclasses.replace(self, pixels=torch.where(region.to(pixels.device), background, pixels))
 
 
 @dataclass(frozen=True)

@@ -41,7 +41,7 @@ from sfb_video.results import (
     save_window,
 )
 from sfb_video.run_folder import frame_path, window_path
-from sfb_video.stages.composite import fit_quality
+from sfb_video.stages.composite import fit_quality, object_radius, path_mask
 from sfb_video.stages.types import FrameStatus, FrameWithBackground, Window
 from sfb_video.timing import timed
 
@@ -141,6 +141,31 @@ def window_frame(
     return WindowFrame(frame.index, crop, masks)
 
 
+def others_region(
+    index: int,
+    track: int,
+    tracks: Collection[int],
+    single: Callable[[tuple[int, int]], FrameResult],
+    camera: PinholeCamera,
+) -> torch.Tensor | None:
+    """(H, W) bool where the other ``tracks`` fitted in frame ``index`` put their objects (each
+    one's path, :func:`~sfb_video.stages.composite.path_mask`), less where ``track``'s own is:
+    what a window of ``track`` should not try to explain, as its single-frame fits did not
+    (:meth:`~sfb_video.stages.types.FrameWithBackground.without`). None where it is alone."""
+    others = [t for t in tracks if t != track]
+    if not others:
+        return None
+
+    def path(t: int) -> torch.Tensor:
+        state = single((index, t)).state
+        return torch.from_numpy(path_mask(state.motion, object_radius(state, camera), camera))
+
+    region = torch.zeros((camera.height, camera.width), dtype=torch.bool)
+    for t in others:
+        region |= path(t)
+    return region & ~path(track)
+
+
 def fit_track_window(
     track: int,
     members: list[int],
@@ -236,6 +261,9 @@ def fit_windows(
             done[window_key(window)] = load_window(path)
     pending = [w for w in windows if window_key(w) not in done]
     boxes = {(s.index, s.track): s.box for s in statuses if s.status == "fitted"}
+    fitted: dict[int, list[int]] = {}  # frame index -> its fitted tracks
+    for index, track in boxes:
+        fitted.setdefault(index, []).append(track)
     owner = frame_windows(windows)
 
     def single(key: tuple[int, int]) -> FrameResult:
@@ -251,7 +279,9 @@ def fit_windows(
         for key in [(frame.index, t) for t in sorted(needed.get(frame.index, ()))]:
             box = boxes[key]
             assert box is not None  # a fitted object has its detection
-            crops[key] = window_frame(frame, box, single(key), camera, config, device)
+            others = others_region(*key, fitted[frame.index], single, camera)
+            seen = frame if others is None else frame.without(others)
+            crops[key] = window_frame(seen, box, single(key), camera, config, device)
         ready = [w for w in pending if all((i, w[0]) in crops for i in w[1])]
         for track, members in ready:
             pending.remove((track, members))

@@ -217,3 +217,53 @@ def test_a_window_refines_and_is_judged_on_the_frames_it_is_shown_for(monkeypatc
     crops = {i: i for i in range(3)}
     saved = windows.fit_track_window(0, [0, 1, 2], crops, lambda i: single, None, CAMERA, load_config("fast"), [1, 2])  # type: ignore[arg-type]
     assert refined == [1, 2] and set(saved.explained) == {1, 2} and saved.accepted
+
+
+def test_a_window_sees_the_other_objects_of_its_frames_as_the_background(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    # Two objects in the same frames: each track's window crops saw the other object's streak too
+    # where it fell in the crop, and tried to explain it. Now the other's path shows the
+    # background, but where it crosses this object's own path (a hole there costs more).
+    from sfb_video.results import FrameResult, save_result
+    from sfb_video.stages.composite import object_radius, path_mask
+
+    vertices, topology = load_prototype("sphere")
+    states = {
+        track: ObjectState(
+            vertices,
+            topology,
+            torch.rand(3, 8, 8),
+            Motion(torch.tensor(x0), torch.tensor(dx), torch.eye(3), torch.zeros(3)),
+        )
+        for track, (x0, dx) in {0: ([-0.5, 0.0, 5.0], [1.0, 0.0, 0.0]), 1: ([0.0, -0.5, 5.0], [0.0, 1.0, 0.0])}.items()
+    }
+    box = (0, 0, 320, 240)
+    statuses = []
+    for index in range(3):
+        for track, state in states.items():
+            save_result(
+                tmp_path,
+                FrameResult(index, box, box, CAMERA, state, "cold", "sphere", {"image": 0.1}, [], 1.0, track=track),
+            )
+            statuses.append(FrameStatus(index, "fitted", box, track=track))
+    generator = torch.Generator().manual_seed(0)
+    pixels = torch.randint(1, 256, (3, 240, 320), dtype=torch.uint8, generator=generator)
+    frames = [FrameWithBackground(i, pixels, torch.zeros_like(pixels)) for i in range(3)]
+    handed: dict[tuple[int, int], torch.Tensor] = {}
+
+    def crop(frame: FrameWithBackground, box: object, result: FrameResult, *args: object) -> None:
+        handed[frame.index, result.track] = frame.pixels
+
+    monkeypatch.setattr(windows, "window_frame", crop)
+    monkeypatch.setattr(windows, "fit_track_window", lambda *args: type("Saved", (), {"accepted": True})())
+    monkeypatch.setattr(windows, "save_window", lambda *args: None)
+    windows.fit_windows(iter(frames), tmp_path, statuses, CAMERA, load_config("fast"), torch.device("cpu"))
+    paths = {t: torch.from_numpy(path_mask(s.motion, object_radius(s, CAMERA), CAMERA)) for t, s in states.items()}
+    assert set(handed) == {(i, t) for i in range(3) for t in (0, 1)}
+    for (_, track), seen in handed.items():
+        other = paths[1 - track] & ~paths[track]
+        crossing = paths[1 - track] & paths[track]
+        assert bool(other.any()) and bool(crossing.any())
+        assert bool((seen[:, other] == 0).all())  # the other object's path: the background
+        assert torch.equal(seen[:, ~other], pixels[:, ~other])  # this one's, and the rest, as filmed
