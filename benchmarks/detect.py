@@ -6,7 +6,8 @@ Each scenario is a generated 320x240 clip with ground truth (the tight box of ev
 object touches during each exposure); two movers, and a slow mover beside a fast one, are a
 second generated object composited into the first clip by its coverage. Frames stream through
 the pipeline's own detection: the running-median background, the difference mask, the
-slow-mover test against the frames two before and two after, the blob choice without a
+slow-mover test against the frames two before and two after (two and three away at the clip's
+ends), the blob choice without a
 prediction (as a track's first frame is found).
 A detection counts as found when its box overlaps the true box with IoU >= 0.5. Per scenario:
 recall (found / frames that show the object), precision (found / detections), the mean box

@@ -2,12 +2,13 @@
 
 The difference D = ||I - B||_2 > threshold (with weaker differences connected to it) is opened
 to remove noise. An FMO travels further than its own size within one frame, so the pixels it
-covers now show something else in the frames two before and two after, while a slow mover (an
-arm, a person) differs from the background there too, and a change of the scene still shows the
-same in the later one: such pixels are dropped (:func:`moving_mask`), and what is left is split
-into blobs (fragments a few pixels apart joined). A tracked object is looked for near where its
-motion predicts it, among blobs large enough for its predicted size, preferring large blobs near
-the prediction; otherwise the largest blob wins.
+covers now show something else in the frames two before and two after (two and three away on
+the one side a clip's end leaves), while a slow mover (an arm, a person) differs from the
+background there too, and a change of the scene still shows the same in the later ones: such
+pixels are dropped (:func:`moving_mask`), and what is left is split into blobs (fragments a few
+pixels apart joined). A tracked object is looked for near where its motion predicts it, among
+blobs large enough for its predicted size, preferring large blobs near the prediction; otherwise
+the largest blob wins.
 """
 
 from __future__ import annotations
@@ -111,7 +112,7 @@ def threshold_difference(
 @timed("detect")
 @dataclass(frozen=True)
 class Neighbour:
-    """What the slow-mover test needs of a frame two before or after.
+    """What the slow-mover test needs of a frame two (or, at a clip's ends, three) before or after.
 
     Attributes:
         mask: (H, W) bool its difference mask.
@@ -172,7 +173,8 @@ def detect(
     Args:
         index: the frame's index.
         mask: (H, W) bool difference mask of this frame (:func:`difference_mask`).
-        neighbours: the frames two before and two after, where there are.
+        neighbours: the frames two before and two after, where there are
+            (:func:`sfb_video.stages.track.with_neighbours`).
         prediction: where a tracked object should be, if one is tracked.
         config: thresholds.
     """

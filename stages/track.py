@@ -18,6 +18,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import torch
@@ -43,9 +44,10 @@ from sfb_video.stages.detect import (
 from sfb_video.stages.fit import continued, fit_detection
 from sfb_video.stages.masks import MaskSource
 from sfb_video.stages.register import mask_onto_next, segment_of, usable
-from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground, Prediction
+from sfb_video.stages.types import Detection, Frame, FrameStatus, FrameWithBackground, Prediction
 
 StepReport = Callable[[FrameStatus, FrameResult | None], None]
+T = TypeVar("T")
 
 
 def predict(motion: Motion, camera: PinholeCamera) -> Prediction:
@@ -105,17 +107,19 @@ def with_neighbours(
     frames: Iterator[FrameWithBackground], config: Config
 ) -> Iterator[tuple[FrameWithBackground, torch.Tensor, list[Neighbour]]]:
     """Each frame with its difference mask and its neighbours (:class:`~sfb_video.stages.detect.Neighbour`): the
-    frames two before and two after.
+    frames two before and two after (at a clip's ends, two and three away on its one side).
 
     Two frames apart, not one: an FMO's streaks in consecutive frames can overlap (it moves
     little more than its size while the shutter is open), but never two frames apart, while a
     slow mover still covers much the same pixels. At a clip's ends only one side has a frame two
     away (the adjacent frame's streak would cut off this one's end), and the frame three away on
     that side joins it: one frame alone drops whatever passes there two frames later, as an
-    object following another along its path does, while a slow mover covers both. Only a clip of
-    three frames or fewer falls back on the adjacent frames.
+    object following another along its path does, while a slow mover covers both (and a change
+    of the scene still shows in both later frames). Only a clip of three frames or fewer falls
+    back on the adjacent frames.
     """
-    history: deque[tuple[FrameWithBackground, torch.Tensor]] = deque(maxlen=3)  # frames t - 3 .. t - 1
+    # Frames t - 3 .. t - 1: their registrations and masks only (not their pixels).
+    history: deque[tuple[Frame, torch.Tensor]] = deque(maxlen=3)
     ahead: deque[tuple[FrameWithBackground, torch.Tensor]] = deque()  # frame t and up to three after
 
     def emit() -> tuple[FrameWithBackground, torch.Tensor, list[Neighbour]]:
@@ -123,10 +127,10 @@ def with_neighbours(
 
         # A moving camera's frames of another reference, or that did not register, are not
         # this frame's neighbours: as at a clip's ends.
-        def kin(other: tuple[FrameWithBackground, torch.Tensor]) -> bool:
+        def kin(other: tuple[Frame | FrameWithBackground, torch.Tensor]) -> bool:
             return segment_of(other[0]) == segment_of(frame) and usable(other[0])
 
-        def earlier_mask(other: tuple[FrameWithBackground, torch.Tensor]) -> torch.Tensor | None:
+        def earlier_mask(other: tuple[Frame, torch.Tensor]) -> torch.Tensor | None:
             if kin(other):
                 return other[1]
             # The camera panned on to this frame's reference: the frames before it still show
@@ -136,24 +140,32 @@ def with_neighbours(
                 return mask_onto_next(other[0], other[1])
             return None
 
-        after = [f for f in ahead if kin(f)]  # frames t + 1 .. t + 3
-        earlier = [m for m in map(earlier_mask, history) if m is not None][::-1]  # frames t - 1 .. t - 3
-        before, later = earlier[1:2], after[1:2]
+        # By distance from this frame; None where a frame is of another reference or did not
+        # register (as at a clip's ends).
+        earlier = [earlier_mask(h) for h in reversed(history)]  # frames t - 1 .. t - 3
+        after = [f if kin(f) else None for f in ahead]  # frames t + 1 .. t + 3
+        before, later = _present(earlier[1:2]), _present(after[1:2])
+        if not before and not later:  # the frames two away did not register
+            before, later = _present(earlier[2:3]), _present(after[2:3])
         if not before and not later:  # a clip of three frames or fewer
-            before, later = earlier[:1], after[:1]
+            before, later = _present(earlier[:1]), _present(after[:1])
         elif not later:
-            before = earlier[1:3]
+            before = _present(earlier[1:3])
         elif not before:
-            later = after[1:3]
-        history.append((frame, mask))
+            later = _present(after[1:3])
+        history.append((Frame(frame.index, torch.empty(0), frame.registered), mask))
         # Only what still shows in a later frame is a scene change: a track that passes the same
-        # place twice (a circular swing) shows the object where an earlier frame had it.
+        # place twice (a circular swing) shows the object where an earlier frame had it. A
+        # change stays: with two later frames, it still shows in both.
+        stills = [still_there(frame.pixels, frame.background_pixels, f.pixels) for f, _ in later]
+        if len(stills) == 2:
+            stills = [stills[0] & stills[1]] * 2
         return (
             frame,
             mask,
             [
                 *(Neighbour(m, torch.zeros_like(m)) for m in before),
-                *(Neighbour(m, still_there(frame.pixels, frame.background_pixels, f.pixels)) for f, m in later),
+                *(Neighbour(m, still) for (_, m), still in zip(later, stills, strict=True)),
             ],
         )
 
@@ -163,6 +175,10 @@ def with_neighbours(
             yield emit()
     while ahead:
         yield emit()
+
+
+def _present(items: list[T | None]) -> list[T]:
+    return [item for item in items if item is not None]
 
 
 def follow(

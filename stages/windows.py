@@ -4,8 +4,9 @@ window of the track (:mod:`sfb_video.fitting.window`).
 A track's fitted frames are cut into windows of ``joint.window`` frames that slide by
 ``window - overlap`` (a short track is one window; the last window ends at the track's end). The
 clip is streamed once more and each window is fitted as soon as its last frame has been read,
-from crops rebuilt exactly as the single-frame fits made them, so memory holds one window's
-crops whatever the clip's length. A window's fit is saved into the run folder when done: the
+from crops rebuilt as the single-frame fits made them (but that the other objects fitted in a
+frame show the background there: :func:`others_region`), so memory holds one window's crops
+whatever the clip's length. A window's fit is saved into the run folder when done: the
 unit a resumed run reuses. The first window of a track chooses a shape among
 ``joint.prototypes`` from its streaks and starts its fit from that shape alone; each
 later window starts from its predecessor's mesh, texture and poses on the frames they share, so
@@ -141,29 +142,25 @@ def window_frame(
     return WindowFrame(frame.index, crop, masks)
 
 
-def others_region(
-    index: int,
-    track: int,
-    tracks: Collection[int],
-    single: Callable[[tuple[int, int]], FrameResult],
-    camera: PinholeCamera,
-) -> torch.Tensor | None:
-    """(H, W) bool where the other ``tracks`` fitted in frame ``index`` put their objects (each
-    one's path, :func:`~sfb_video.stages.composite.path_mask`), less where ``track``'s own is:
-    what a window of ``track`` should not try to explain, as its single-frame fits did not
-    (:meth:`~sfb_video.stages.types.FrameWithBackground.without`). None where it is alone."""
-    others = [t for t in tracks if t != track]
+def object_paths(results: dict[int, FrameResult], camera: PinholeCamera) -> dict[int, torch.Tensor]:
+    """Per track, the (H, W) bool path of its object fitted in one frame (``results``, by track)
+    in ``camera``'s image (:func:`~sfb_video.stages.composite.path_mask`)."""
+    paths = {}
+    for track, result in results.items():
+        state = result.state
+        paths[track] = torch.from_numpy(path_mask(state.motion, object_radius(state, camera), camera))
+    return paths
+
+
+def others_region(track: int, paths: dict[int, torch.Tensor]) -> torch.Tensor | None:
+    """(H, W) bool where the other tracks of a frame put their objects (their ``paths``,
+    :func:`object_paths`), less where ``track``'s own is: what a window of ``track`` should not
+    try to explain (:meth:`~sfb_video.stages.types.FrameWithBackground.without`); a hole where
+    two paths cross would cost its fit more than the other's streak does. None where it is alone."""
+    others = [path for t, path in paths.items() if t != track]
     if not others:
         return None
-
-    def path(t: int) -> torch.Tensor:
-        state = single((index, t)).state
-        return torch.from_numpy(path_mask(state.motion, object_radius(state, camera), camera))
-
-    region = torch.zeros((camera.height, camera.width), dtype=torch.bool)
-    for t in others:
-        region |= path(t)
-    return region & ~path(track)
+    return torch.stack(others).any(dim=0) & ~paths[track]
 
 
 def fit_track_window(
@@ -263,7 +260,8 @@ def fit_windows(
     boxes = {(s.index, s.track): s.box for s in statuses if s.status == "fitted"}
     fitted: dict[int, list[int]] = {}  # frame index -> its fitted tracks
     for index, track in boxes:
-        fitted.setdefault(index, []).append(track)
+        if track is not None:
+            fitted.setdefault(index, []).append(track)
     owner = frame_windows(windows)
 
     def single(key: tuple[int, int]) -> FrameResult:
@@ -276,12 +274,15 @@ def fit_windows(
             needed.setdefault(index, set()).add(track)
     # A window is fitted once its last frame is read; several tracks' windows may wait at once.
     for frame in frames if pending else ():
-        for key in [(frame.index, t) for t in sorted(needed.get(frame.index, ()))]:
+        keys = [(frame.index, t) for t in sorted(needed.get(frame.index, ()))]
+        results = {t: single((frame.index, t)) for t in fitted[frame.index]} if keys else {}
+        paths = object_paths(results, camera) if len(results) > 1 else {}
+        for key in keys:
             box = boxes[key]
             assert box is not None  # a fitted object has its detection
-            others = others_region(*key, fitted[frame.index], single, camera)
+            others = others_region(key[1], paths) if paths else None
             seen = frame if others is None else frame.without(others)
-            crops[key] = window_frame(seen, box, single(key), camera, config, device)
+            crops[key] = window_frame(seen, box, results[key[1]], camera, config, device)
         ready = [w for w in pending if all((i, w[0]) in crops for i in w[1])]
         for track, members in ready:
             pending.remove((track, members))

@@ -23,7 +23,7 @@ from sfb_video.stages.background import running_median
 from sfb_video.stages.detect import frame_blobs
 from sfb_video.stages.fit import continued
 from sfb_video.stages.track import Tracker, follow, predict, short_tracks_dropped, track_and_fit, with_neighbours
-from sfb_video.stages.types import Frame, FrameStatus, FrameWithBackground
+from sfb_video.stages.types import Frame, FrameStatus, FrameWithBackground, Registered
 from sfb_video.synth import generate_clip
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
@@ -40,12 +40,17 @@ def _frames(count: int) -> list[FrameWithBackground]:
     return out
 
 
-def _neighbours(count: int) -> dict[int, list[int]]:
+def _neighbours(count: int, failed: int | None = None) -> dict[int, list[int]]:
     """Frame index -> the indices of its neighbours, negative for the earlier ones (which say
     nothing of what still shows: a track passing the same place twice would look still)."""
     config = load_config("default", ["detect.open_px=1", "detect.weak_threshold=0.5"])
     out = {}
-    for frame, _, near in with_neighbours(iter(_frames(count)), config):
+    frames = _frames(count)
+    if failed is not None:  # a moving camera's frame that did not register
+        pixels = frames[failed].pixels
+        registered = Registered(None, pixels, torch.ones(pixels.shape[1:], dtype=torch.bool), 0)
+        frames[failed] = dataclasses.replace(frames[failed], registered=registered)
+    for frame, _, near in with_neighbours(iter(frames), config):
         out[frame.index] = []
         for n in near:
             index = int(n.mask[0].nonzero()[0])
@@ -69,6 +74,9 @@ def test_the_neighbours_are_two_frames_away_and_never_adjacent_where_the_clip_is
         7: [-5, -4],
     }
     assert _neighbours(4) == {0: [2, 3], 1: [3], 2: [0], 3: [-1, 0]}
+    # A frame that did not register is no neighbour: the others are still taken by distance.
+    near = _neighbours(8, failed=3)
+    assert near[1] == [4] and near[5] == [7] and near[6] == [-4] and near[2] == [0, 4]
     assert _neighbours(3) == {0: [2], 1: [0, 2], 2: [0]}
     assert _neighbours(2) == {0: [1], 1: [0]}
 

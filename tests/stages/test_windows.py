@@ -249,7 +249,7 @@ def test_a_window_sees_the_other_objects_of_its_frames_as_the_background(
             statuses.append(FrameStatus(index, "fitted", box, track=track))
     generator = torch.Generator().manual_seed(0)
     pixels = torch.randint(1, 256, (3, 240, 320), dtype=torch.uint8, generator=generator)
-    frames = [FrameWithBackground(i, pixels, torch.zeros_like(pixels)) for i in range(3)]
+    frames = [FrameWithBackground(i, pixels.clone(), torch.zeros_like(pixels)) for i in range(3)]
     handed: dict[tuple[int, int], torch.Tensor] = {}
 
     def crop(frame: FrameWithBackground, box: object, result: FrameResult, *args: object) -> None:
@@ -267,3 +267,4 @@ def test_a_window_sees_the_other_objects_of_its_frames_as_the_background(
         assert bool(other.any()) and bool(crossing.any())
         assert bool((seen[:, other] == 0).all())  # the other object's path: the background
         assert torch.equal(seen[:, ~other], pixels[:, ~other])  # this one's, and the rest, as filmed
+    assert all(torch.equal(f.pixels, pixels) for f in frames)  # the frames themselves untouched
