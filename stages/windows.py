@@ -152,15 +152,13 @@ def object_paths(results: dict[int, FrameResult], camera: PinholeCamera) -> dict
     return paths
 
 
-def others_region(track: int, paths: dict[int, torch.Tensor]) -> torch.Tensor | None:
+def others_region(track: int, paths: dict[int, torch.Tensor]) -> torch.Tensor:
     """(H, W) bool where the other tracks of a frame put their objects (their ``paths``,
     :func:`object_paths`), less where ``track``'s own is: what a window of ``track`` should not
     try to explain (:meth:`~sfb_video.stages.types.FrameWithBackground.without`); a hole where
-    two paths cross would cost its fit more than the other's streak does. None where it is alone."""
-    others = [path for t, path in paths.items() if t != track]
-    if not others:
-        return None
-    return torch.stack(others).any(dim=0) & ~paths[track]
+    two paths cross would cost its fit more than the other's streak does."""
+    others = torch.stack([path for t, path in paths.items() if t != track]).any(dim=0)
+    return others & ~paths[track]
 
 
 def fit_track_window(
@@ -280,8 +278,8 @@ def fit_windows(
         for key in keys:
             box = boxes[key]
             assert box is not None  # a fitted object has its detection
-            others = others_region(key[1], paths) if paths else None
-            seen = frame if others is None else frame.without(others)
+            # Several objects in the frame: the others show the background.
+            seen = frame.without(others_region(key[1], paths)) if paths else frame
             crops[key] = window_frame(seen, box, results[key[1]], camera, config, device)
         ready = [w for w in pending if all((i, w[0]) in crops for i in w[1])]
         for track, members in ready:
