@@ -11,7 +11,9 @@ tracked: ``video.max_objects=0``), and so does each object alone over the same b
 the same noise.
 
 Per object (:mod:`sfb_video.evaluation.objects`): the track that covers it, recall (frames that
-track found it / frames it is in) and precision (those / frames the track holds a box), TIoU
+track found it / frames it is in) and precision (those / frames the track holds a box), the
+track's box in a frame being its fitted object's (``object_box``: every pixel it covers, as the
+truth's box is; the recall of the detections' boxes, the streak's strong pixels, is beside), TIoU
 and PSNR of the run's final fits on its tight box (rendered over the other objects' true
 sub-frames, against the whole clip's true sub-frames), and the same alone. Tracks that cover no
 object are counted apart. Targets (issue 34): recall and precision >= 0.95 per object, TIoU and
@@ -125,6 +127,7 @@ class ObjectRow:
     alone_coverage: Coverage
     alone_tiou: float
     alone_psnr: float
+    detected_recall: float
 
 
 def scenario_clip(name: str) -> tuple[SeveralClip, int]:
@@ -142,22 +145,23 @@ def write_video(clip: SeveralClip, path: Path) -> Path:
     return path
 
 
-def fitted_tracks(summary: dict) -> dict[int, dict[int, Box]]:
-    """Per track of a run's ``summary.json``, frame -> the box of its fitted object."""
+def fitted_tracks(summary: dict, key: str = "object_box") -> dict[int, dict[int, Box]]:
+    """Per track of a run's ``summary.json``, frame -> the box of its fitted object (``key``
+    ``box``: the box its detection found)."""
     tracks: dict[int, dict[int, Box]] = {}
     for row in summary["frames"]:
-        if row["status"] == "fitted":
-            tracks.setdefault(row["track"], {})[row["index"]] = tuple(row["box"])
+        if row["status"] == "fitted" and row.get(key) is not None:
+            tracks.setdefault(row["track"], {})[row["index"]] = tuple(row[key])
     return tracks
 
 
-def run_clip(clip: SeveralClip, folder: Path, config: Config) -> tuple[dict[int, dict[int, Box]], dict]:
-    """Write ``clip`` as a video and run the pipeline on it: per track, frame -> its box; and the
-    final fits by (frame, track)."""
+def run_clip(clip: SeveralClip, folder: Path, config: Config) -> tuple[dict, dict]:
+    """Write ``clip`` as a video and run the pipeline on it: its ``summary.json`` and the final
+    fits by (frame, track)."""
     folder.mkdir(parents=True, exist_ok=True)
     video = write_video(clip, folder / "clip.mp4")
     summary = process_clip(ProcessOptions(video=video, out=folder / "run"), config, CPU, quiet=True)
-    return fitted_tracks(summary), final_results(folder / "run")
+    return summary, final_results(folder / "run")
 
 
 def fit_scores(clip: SeveralClip, layer: int, coverage: Coverage, fits: dict, config: Config) -> tuple[float, float]:
@@ -194,18 +198,22 @@ def score_scenario(name: str, config: Config, root: Path) -> tuple[list[ObjectRo
     them, and its seconds."""
     clip, count = scenario_clip(name)
     start = time.perf_counter()
-    tracks, fits = run_clip(clip, root / "all", config)
+    summary, fits = run_clip(clip, root / "all", config)
     seconds = time.perf_counter() - start
+    tracks = fitted_tracks(summary)
     truths = [_truth(layer) for layer in clip.layers[:count]]
     coverage = cover_objects(truths, tracks)
+    detected = cover_objects(truths, fitted_tracks(summary, "box"))
     rows = []
     for k, obj in enumerate(clip.layers[:count]):
         alone = several(clip.background, clip.camera, [obj], BASE.noise_sigma, SEED)
-        alone_tracks, alone_fits = run_clip(alone, root / f"alone_{k}", config)
-        [alone_coverage] = cover_objects([truths[k]], alone_tracks)
+        alone_summary, alone_fits = run_clip(alone, root / f"alone_{k}", config)
+        [alone_coverage] = cover_objects([truths[k]], fitted_tracks(alone_summary))
         tiou, psnr = fit_scores(clip, k, coverage[k], fits, config)
         alone_tiou, alone_psnr = fit_scores(alone, 0, alone_coverage, alone_fits, config)
-        rows.append(ObjectRow(name, k, coverage[k], tiou, psnr, alone_coverage, alone_tiou, alone_psnr))
+        rows.append(
+            ObjectRow(name, k, coverage[k], tiou, psnr, alone_coverage, alone_tiou, alone_psnr, detected[k].recall)
+        )
     return rows, spurious_tracks(coverage, tracks), seconds
 
 
@@ -213,14 +221,15 @@ def _table(rows: list[ObjectRow], spurious: dict[str, dict[int, int]], seconds: 
     # Alone beside each figure: an object the pipeline misses alone too is a detection limit, not
     # a matter of several objects.
     figures = ("recall", "precision", "TIoU", "PSNR")
-    print("| scenario | object | track | frames in | " + " | ".join(f"{f} | alone" for f in figures) + " |")
-    print("|---|---:|---:|---:|" + "---:|" * 2 * len(figures))
+    head = " | ".join(f"{f} | alone" for f in figures)
+    print(f"| scenario | object | track | frames in | {head} | recall, detected boxes |")
+    print("|---|---:|---:|---:|" + "---:|" * (2 * len(figures) + 1))
     for r in rows:
         c, a = r.coverage, r.alone_coverage
         print(
             f"| {r.scenario} | {r.object} | {c.track} | {c.present} | {c.recall:.2f} | {a.recall:.2f} | "
             f"{c.precision:.2f} | {a.precision:.2f} | {r.tiou:.3f} | {r.alone_tiou:.3f} | {r.psnr:.2f} | "
-            f"{r.alone_psnr:.2f} |"
+            f"{r.alone_psnr:.2f} | {r.detected_recall:.2f} |"
         )
     print("\n| scenario | spurious tracks (detections) | seconds, all objects |\n|---|---|---:|")
     for name, extra in spurious.items():

@@ -532,6 +532,7 @@ def export_frames(
                 rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
                 record = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)
                 record["explained"] = rendered.explained
+                record["object_box"] = result.state.image_box(camera)
                 if window is not None:
                     record.update(
                         window=window.frames[0], losses_before=single.losses, prototype_before=single.prototype

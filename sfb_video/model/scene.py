@@ -80,3 +80,24 @@ class ObjectState:
                 coverage += out.alpha.sum(0)
         # blend() of all T renders, from their sums.
         return premultiplied / len(taus) + (1 - coverage / len(taus)) * background
+
+    def image_box(self, camera: PinholeCamera, samples: int = 17) -> tuple[int, int, int, int] | None:
+        """(x, y, w, h) box of the pixels the object covers during the exposure, within
+        ``camera``'s image (None: it is never in the image).
+
+        A mesh's silhouette reaches no farther than its vertices, so the box is that of its
+        posed vertices projected at ``samples`` instants of the exposure (pixel centres at
+        integers): no render needed.
+        """
+        with torch.no_grad():
+            rotations, positions = self.motion.at(torch.linspace(0, 1, samples, device=self.vertices.device))
+            uv, depth = camera.project(pose_vertices(self.vertices, rotations, positions))
+        uv = uv[depth > 0]
+        if uv.numel() == 0:
+            return None
+        (u0, v0), (u1, v1) = torch.floor(uv.amin(0) + 0.5).tolist(), torch.floor(uv.amax(0) + 0.5).tolist()
+        x0, y0 = max(0, int(u0)), max(0, int(v0))
+        x1, y1 = min(camera.width - 1, int(u1)), min(camera.height - 1, int(v1))
+        if x1 < x0 or y1 < y0:
+            return None
+        return x0, y0, x1 - x0 + 1, y1 - y0 + 1

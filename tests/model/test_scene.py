@@ -42,3 +42,24 @@ def test_rendering_in_batches_of_poses_changes_nothing() -> None:
     assert torch.allclose(at_once, one_by_one, atol=1e-6)
     out = state.render(CAMERA, exposure_times(8), RenderConfig())
     assert torch.allclose(at_once, blend(out.rgb, out.alpha, background), atol=1e-6)
+
+
+def _box_of(mask: torch.Tensor) -> tuple[int, int, int, int]:
+    ys, xs = torch.nonzero(mask, as_tuple=True)
+    return int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1)
+
+
+def test_image_box_is_the_rendered_silhouettes_box() -> None:
+    state = _ball()
+    alpha = state.render(CAMERA, torch.linspace(0, 1, 64), RenderConfig()).alpha.amax(0)[0]
+    # Pixels whose centres it covers, and at most the ones beside them that it touches.
+    x, y, w, h = _box_of(alpha > 0.5)
+    bx, by, bw, bh = state.image_box(CAMERA)
+    assert x - 1 <= bx <= x and y - 1 <= by <= y
+    assert x + w <= bx + bw <= x + w + 1 and y + h <= by + bh <= y + h + 1
+    # A box that leaves the image is cut at its edge; one wholly behind the camera is none.
+    right = dataclasses.replace(state, motion=dataclasses.replace(state.motion, x0=torch.tensor([1.5, 0.0, 5.0])))
+    rx, _, rw, _ = right.image_box(CAMERA)
+    assert rx + rw == CAMERA.width and rw < bw
+    behind = dataclasses.replace(state, motion=dataclasses.replace(state.motion, x0=torch.tensor([0.0, 0.0, -9.0])))
+    assert behind.image_box(CAMERA) is None
