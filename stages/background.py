@@ -7,6 +7,11 @@ Three sources, as the paper and users need them:
 - ``global``: the median of frames spread evenly over the whole clip (a first pass reads them);
   for a camera that never moves and objects that never rest.
 - a user-supplied image.
+
+Where the frames of a median disagree on a pixel and no other frame backs the median's value,
+the value most of them agree on is taken instead (``video.background_tolerance``): two objects
+following one path cover it in most frames, each in another colour, and the frames that show
+the scene agree.
 """
 
 from __future__ import annotations
@@ -32,9 +37,12 @@ MEDIAN_BAND_VALUES = 1 << 22
 stacked frames, so that a 4K clip's stack is never whole in memory."""
 
 
-def _median(images: list[torch.Tensor], covers: list[torch.Tensor | None] | None = None) -> torch.Tensor:
-    """(3, H, W) per-pixel median of (3, H, W) frames, in their dtype (torch takes the lower
-    middle value of an even count, so a uint8 median is exactly the float one, scaled).
+def _median(
+    images: list[torch.Tensor], covers: list[torch.Tensor | None] | None = None, tolerance: float = 0.0
+) -> torch.Tensor:
+    """(3, H, W) per-pixel background of (3, H, W) frames, in their dtype: the median (torch
+    takes the lower middle value of an even count, so a uint8 median is exactly the float one,
+    scaled), or with a ``tolerance`` the value most frames agree on (:func:`_consensus`).
 
     ``covers``: per frame the (H, W) bool pixels it saw (a registered frame's), or None for all;
     a pixel's median is then of the frames that saw it (of all, where none did).
@@ -46,14 +54,55 @@ def _median(images: list[torch.Tensor], covers: list[torch.Tensor | None] | None
     for top in range(0, first.shape[1], rows):
         band = torch.stack([image[:, top : top + rows] for image in images])
         plain = band.median(dim=0).values
+        seen = None
         if masked:
+            assert covers is not None
             seen = torch.stack(
                 [torch.ones_like(band[0, 0], dtype=torch.bool) if c is None else c[top : top + rows] for c in covers]
             )
             values = band.float().masked_fill(~seen[:, None], float("nan")).nanmedian(dim=0).values
             filled = torch.where(values.isnan(), plain.float(), values)
             plain = filled.round().to(first.dtype) if first.dtype == torch.uint8 else filled.to(first.dtype)
+        if tolerance > 0 and len(images) > 2:
+            plain = _consensus(band, plain, seen, tolerance * (255 if first.dtype == torch.uint8 else 1))
         out[:, top : top + rows] = plain
+    return out
+
+
+def _consensus(band: torch.Tensor, median: torch.Tensor, seen: torch.Tensor | None, tolerance: float) -> torch.Tensor:
+    """(3, h, w) the ``median`` (3, h, w) of ``band``'s (K, 3, h, w) values, but where no other
+    value agrees with it (every channel within ``tolerance``): there, the mean of the largest
+    set of values that agree with one of them, when it has two or more and no value outside it
+    has as many agreeing. Only frames ``seen`` (K, h, w) count.
+
+    Where most frames show the background the median is the background. Where moving objects
+    cover most of them (two objects following one path) the median is one of theirs, but
+    objects passing differ from one another, while the frames that show the background agree.
+    Only pixels whose values spread beyond the tolerance are worked on (few: the movers' paths).
+    """
+    values = band.float()
+    disputed = (values.amax(0) - values.amin(0)).amax(0) > tolerance
+    if not bool(disputed.any()):
+        return median
+    v = values[:, :, disputed]  # (K, 3, n)
+    frames = v.shape[0]
+    counted = torch.ones_like(v[:, 0], dtype=torch.bool) if seen is None else seen[:, disputed]  # (K, n)
+    agree = torch.stack([(v - v[i]).abs().amax(1) <= tolerance for i in range(frames)])  # (K, K, n)
+    agree &= counted[:, None] & counted[None]
+    count = agree.sum(1)  # (K, n)
+    near = (v - median[:, disputed].float()[None]).abs().amax(1)  # (K, n)
+    backed = ((near <= tolerance) & counted).sum(0)  # the frames that agree with the median
+    pick = torch.where(count == count.amax(0), near, torch.inf).argmin(0)  # (n,)
+    members = agree.permute(2, 0, 1)[torch.arange(pick.numel()), pick].T  # (K, n)
+    total = members.sum(0)
+    # The median stays wherever another frame backs it (a slow mover covering a pixel in most
+    # frames shows much the same there: taking it for the scene keeps it out of the difference,
+    # as the median always did), and where the largest set only ties with another.
+    rival = torch.where(members, 0, count).amax(0)
+    value = (v * members[:, None]).sum(0) / total.clamp(min=1)
+    out = median.clone()
+    chosen = torch.where((total > rival) & (total >= 2) & (backed <= 1), value, median[:, disputed].float())
+    out[:, disputed] = chosen.round().to(out.dtype) if out.dtype == torch.uint8 else chosen.to(out.dtype)
     return out
 
 
@@ -86,8 +135,9 @@ def _paired(frame: Frame, background: torch.Tensor, seen: torch.Tensor | None = 
     return FrameWithBackground(frame.index, pixels, background, frame.registered, known)
 
 
-def running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBackground]:
-    """Pair each frame with the median of the ``window`` frames before it (see module docstring).
+def running_median(frames: Iterable[Frame], window: int, tolerance: float = 0.0) -> Iterator[FrameWithBackground]:
+    """Pair each frame with the median of the ``window`` frames before it (see module docstring;
+    with a ``tolerance``, the value most of them agree on: :func:`_consensus`).
 
     A moving camera's frames are taken a reference (a segment) at a time: a new reference's
     frames start a background of their own, and a frame that did not register is no part of
@@ -102,7 +152,7 @@ def running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBa
     carried: list[Frame] = []
     for _, group in groupby(chain(head, stream), key=segment_of):
         last: deque[Frame] = deque(maxlen=window)
-        yield from _running_median(_kept(group, last), window, carried)
+        yield from _running_median(_kept(group, last), window, carried, tolerance)
         # A camera that pans on to a new reference: its first frames' background starts from
         # the last frames before it, drawn there, not from a few frames of its own (in which a
         # slow object leaves a ghost).
@@ -117,7 +167,9 @@ def _kept(frames: Iterable[Frame], last: deque[Frame]) -> Iterator[Frame]:
         yield frame
 
 
-def _running_median(frames: Iterable[Frame], window: int, carried: list[Frame]) -> Iterator[FrameWithBackground]:
+def _running_median(
+    frames: Iterable[Frame], window: int, carried: list[Frame], tolerance: float
+) -> Iterator[FrameWithBackground]:
     stream = iter(frames)
     if len(carried) < window:
         head = list(islice(stream, window + 1))
@@ -125,14 +177,16 @@ def _running_median(frames: Iterable[Frame], window: int, carried: list[Frame]) 
         for frame in head[:window]:
             others = [f for f in seen if f is not frame]
             # A reference seen by one frame only has nothing to compare with: no difference.
-            background = _median([f.image for f in others], [_cover(f) for f in others]) if others else frame.image
+            background = (
+                _median([f.image for f in others], [_cover(f) for f in others], tolerance) if others else frame.image
+            )
             yield _paired(frame, background, _seen(others))
         previous = deque(carried + [f for f in head[:window] if usable(f)], maxlen=window)
     else:
         head, previous = [], deque(carried, maxlen=window)
     for frame in chain(head[window:], stream):
         known = list(previous)
-        background = _median([f.image for f in known], [_cover(f) for f in known]) if known else frame.image
+        background = _median([f.image for f in known], [_cover(f) for f in known], tolerance) if known else frame.image
         yield _paired(frame, background, _seen(known))
         if usable(frame):
             previous.append(frame)
@@ -140,7 +194,11 @@ def _running_median(frames: Iterable[Frame], window: int, carried: list[Frame]) 
 
 @timed("background")
 def global_median(
-    path: Path, samples: int, frame_count: int | None, motion: CameraMotion | None = None
+    path: Path,
+    samples: int,
+    frame_count: int | None,
+    motion: CameraMotion | None = None,
+    tolerance: float = 0.0,
 ) -> torch.Tensor:
     """(3, H, W) float32 median of up to ``samples`` frames spread evenly over the clip at
     ``path`` (registered by ``motion`` when the camera moves)."""
@@ -156,7 +214,7 @@ def global_median(
         raise SfbError(
             f"{path}: no frame registered with the first for a global background; use video.background=running"
         )
-    return as_float(_median([_quantised(f.image) for f in kept], [_cover(f) for f in kept]))
+    return as_float(_median([_quantised(f.image) for f in kept], [_cover(f) for f in kept], tolerance))
 
 
 def _quantised(image: torch.Tensor) -> torch.Tensor:
@@ -212,14 +270,22 @@ def with_backgrounds(
         return timed_iter("background", fixed_background(stream, *onto_canvas(read_image(background), motion)))
     if config.background == "running":
         if frames is None:
-            return timed_iter("background", running_median(stream, config.background_window))
+            return timed_iter(
+                "background", running_median(stream, config.background_window, config.background_tolerance)
+            )
         wide = registered(read_frames(path, frames_read(frames, config)), motion)
-        ranged = (f for f in running_median(wide, config.background_window) if f.index in frames)
+        ranged = (
+            f for f in running_median(wide, config.background_window, config.background_tolerance) if f.index in frames
+        )
         return timed_iter("background", ranged)
     if config.background == "global":
         if motion is not None and motion.references > 1:
             raise SfbError("the camera pans beyond its first view: video.background=global needs one view; use running")
         return timed_iter(
-            "background", fixed_background(stream, global_median(path, config.global_samples, frame_count, motion))
+            "background",
+            fixed_background(
+                stream,
+                global_median(path, config.global_samples, frame_count, motion, config.background_tolerance),
+            ),
         )
     raise ConfigError(f"video.background must be 'running' or 'global', got {config.background!r}")
