@@ -21,6 +21,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import scipy.sparse
 import torch
 import torch.nn.functional as F
 
@@ -80,23 +81,38 @@ def _bilinear_taps(uv: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Ten
     return index, weight
 
 
+@dataclass(frozen=True)
+class TextureSystem:
+    """The linear map from a texture to a window's blurred images, as a least-squares system:
+    the blurred images are ``A @ texels + (1 - mean alpha) * background``, and ``A @ texels -
+    target`` is their error.
+
+    Attributes:
+        rows, cols, values: (E,) each, A's entries; entries at one place add up (a pixel sees
+            the same texel at several instants).
+        shape: (N, size * size): N pixels over the window's crops.
+        target: (N, 3) the b.
+    """
+
+    rows: torch.Tensor
+    cols: torch.Tensor
+    values: torch.Tensor
+    shape: tuple[int, int]
+    target: torch.Tensor
+
+
 def texture_system(
     crops: Sequence[Crop],
     posed: Sequence[torch.Tensor],
     topology: MeshTopology,
     size: int,
     settings: RenderConfig,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """The linear map from a texture to the window's blurred images, as a least-squares system.
+) -> TextureSystem:
+    """The :class:`TextureSystem` of a window's crops for a texture of ``size`` texels a side.
 
     Args:
         crops: the window's crops; posed: per crop, (T, V, 3) its exposure's camera-space
-            vertices; size: texels a side.
-
-    Returns:
-        the sparse (N, size * size) matrix A and (N, 3) target b over all N crop pixels, such
-        that the blurred images are A @ texels + (1 - mean alpha) * background and A @ x - b is
-        their error.
+            vertices.
     """
     rows, cols, values, targets = [], [], [], []
     offset = 0
@@ -115,9 +131,46 @@ def texture_system(
         image, background = crop.image.reshape(3, -1), crop.background.reshape(3, -1)
         targets.append((image - (1 - coverage) * background).T)
         offset += height * width
-    indices = torch.stack((torch.cat(rows), torch.cat(cols)))
-    matrix = torch.sparse_coo_tensor(indices, torch.cat(values), (offset, size * size), check_invariants=False)
-    return matrix.coalesce(), torch.cat(targets)
+    return TextureSystem(torch.cat(rows), torch.cat(cols), torch.cat(values), (offset, size * size), torch.cat(targets))
+
+
+class _Products:
+    """What the solve needs of a :class:`TextureSystem`'s A: A^T A, A^T b and A x. On the CPU
+    through SciPy's CSR (its products and its summing of repeated entries take a third of the
+    time of torch's sparse COO with its coalescing); on a GPU through torch's, on the device."""
+
+    def __init__(self, system: TextureSystem, scipy_csr: bool | None = None) -> None:
+        if scipy_csr is None:
+            scipy_csr = system.values.device.type == "cpu"
+        if scipy_csr:
+            at = (system.cols.numpy(), system.rows.numpy())
+            self.at = scipy.sparse.csr_matrix((system.values.numpy(), at), shape=system.shape[::-1])
+            self.a = self.at.T.tocsr()
+        else:
+            self.a = torch.sparse_coo_tensor(
+                torch.stack((system.rows, system.cols)), system.values, system.shape, check_invariants=False
+            ).coalesce()
+            self.at = self.a.t().coalesce()
+
+    def gram(self) -> torch.Tensor:
+        """(n, n) A^T A, float32."""
+        if isinstance(self.at, torch.Tensor):
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
+                return torch.sparse.mm(self.at, self.a).to_dense()
+        return torch.from_numpy((self.at @ self.a).toarray())
+
+    def transposed_times(self, x: torch.Tensor) -> torch.Tensor:
+        """(n, 3) A^T x of (N, 3) ``x``."""
+        if isinstance(self.at, torch.Tensor):
+            return torch.sparse.mm(self.at, x)
+        return torch.from_numpy(self.at @ x.numpy())
+
+    def times(self, x: torch.Tensor) -> torch.Tensor:
+        """(N, 3) A x of (n, 3) ``x``."""
+        if isinstance(self.a, torch.Tensor):
+            return torch.sparse.mm(self.a, x)
+        return torch.from_numpy(self.a @ x.numpy())
 
 
 @functools.cache
@@ -136,29 +189,25 @@ def _grid_laplacian(size: int, device: torch.device) -> torch.Tensor:
     return laplacian
 
 
-def solve_texture(
-    matrix: torch.Tensor, target: torch.Tensor, size: int, smoothness: float
-) -> tuple[torch.Tensor, float]:
+def solve_texture(system: TextureSystem, size: int, smoothness: float) -> tuple[torch.Tensor, float]:
     """The texture that minimises ||A x - b||^2 + smoothness * (squared texel differences).
 
     Args:
-        matrix: (N, size^2) sparse A; target: (N, 3) b (:func:`texture_system`).
+        system: A and b (:func:`texture_system`).
 
     Returns:
         the texture (3, size, size) and its residual ||A x - b||^2.
     """
     n = size * size
-    transposed = matrix.t().coalesce()
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
-        gram = torch.sparse.mm(transposed, matrix).to_dense()
+    products = _Products(system)
+    gram = products.gram()
     # A tiny ridge keeps texels that no pixel sees (and the Laplacian's constant null space)
     # solvable; float64, as float32 Cholesky fails on such nearly singular systems.
     eye = torch.eye(n, device=gram.device, dtype=torch.float64)
-    system = gram.double() + smoothness * _grid_laplacian(size, gram.device) + 1e-6 * eye
-    rhs = torch.sparse.mm(transposed, target).double()
-    texels = torch.cholesky_solve(rhs, torch.linalg.cholesky(system)).to(target.dtype)
-    residual = float((torch.sparse.mm(matrix, texels) - target).square().sum())
+    matrix = gram.double() + smoothness * _grid_laplacian(size, gram.device) + 1e-6 * eye
+    rhs = products.transposed_times(system.target).double()
+    texels = torch.cholesky_solve(rhs, torch.linalg.cholesky(matrix)).to(system.target.dtype)
+    residual = float((products.times(texels) - system.target).square().sum())
     return texels.T.reshape(3, size, size), residual
 
 
@@ -175,8 +224,7 @@ def score_spin(
     """The best coarse texture's residual over the window for one candidate ``spin`` (3,)."""
     rotations, positions = poses(spin)
     posed = [pose_vertices(vertices, r, p) for r, p in zip(rotations, positions, strict=True)]
-    matrix, target = texture_system(crops, posed, topology, size, settings)
-    texture, residual = solve_texture(matrix, target, size, smoothness)
+    texture, residual = solve_texture(texture_system(crops, posed, topology, size, settings), size, smoothness)
     return SpinScore(spin, residual, texture)
 
 

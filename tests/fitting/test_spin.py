@@ -13,6 +13,7 @@ from sfb_video.config import RenderConfig
 from sfb_video.crop import Crop
 from sfb_video.fitting.spin import (
     SpinScore,
+    _Products,
     fibonacci_axes,
     score_spin,
     search_spin,
@@ -73,13 +74,20 @@ def test_the_linear_system_is_the_blurred_render() -> None:
     crops = _crops(texture, TRUE_SPIN)
     vertices, topology = load_prototype("sphere")
     posed = [pose_vertices(vertices, r, p) for r, p in zip(*_poses(TRUE_SPIN), strict=True)]
-    matrix, target = texture_system(crops, posed, topology, 16, SETTINGS)
+    system = texture_system(crops, posed, topology, 16, SETTINGS)
     texels = texture.reshape(3, -1).T
-    error = torch.sparse.mm(matrix, texels) - target
+    matrix = torch.sparse_coo_tensor(
+        torch.stack((system.rows, system.cols)), system.values, system.shape, check_invariants=True
+    )
+    error = torch.sparse.mm(matrix, texels) - system.target
     assert float(error.abs().max()) < 1e-5
     # Solved back with a vanishing smoothness, that texture (or one as good) is found.
-    _, residual = solve_texture(matrix, target, 16, 1e-6)
+    _, residual = solve_texture(system, 16, 1e-6)
     assert residual < 1e-4  # float32; a grey texture leaves about 10
+    # A frame that shows something the object cannot: the residual counts it wherever it is.
+    crops[0].image[:, 0, 0] += 0.5
+    far = texture_system(crops, posed, topology, 16, SETTINGS)
+    assert solve_texture(far, 16, 1e-6)[1] == pytest.approx(residual + 0.75, abs=1e-3)
 
 
 def test_the_residual_is_lowest_at_the_true_spin() -> None:
@@ -115,3 +123,16 @@ def test_a_known_score_is_not_scored_again_and_can_win() -> None:
     assert best is known and scored == len(grid) == len(calls)
     worse = SpinScore(torch.zeros(3), 9.0, torch.ones(3, 2, 2))
     assert search_spin(grid, score, (), (worse,))[0] is not worse
+
+
+def test_scipy_and_torch_give_the_same_products() -> None:
+    # The CPU solves through SciPy, a GPU through torch's sparse tensors: the same numbers.
+    crops = _crops(_patches(16), TRUE_SPIN)
+    vertices, topology = load_prototype("sphere")
+    posed = [pose_vertices(vertices, r, p) for r, p in zip(*_poses(TRUE_SPIN), strict=True)]
+    system = texture_system(crops, posed, topology, 16, SETTINGS)
+    host, device = _Products(system, scipy_csr=True), _Products(system, scipy_csr=False)
+    x = torch.rand(256, 3, generator=torch.Generator().manual_seed(3))
+    assert torch.allclose(host.gram(), device.gram(), atol=1e-5)
+    assert torch.allclose(host.transposed_times(system.target), device.transposed_times(system.target), atol=1e-5)
+    assert torch.allclose(host.times(x), device.times(x), atol=1e-5)
