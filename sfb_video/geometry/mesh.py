@@ -87,8 +87,11 @@ class MeshTopology:
         return bool((self.edge_faces[:, 1] >= 0).all())
 
     def face_uv_coords(self) -> torch.Tensor:
-        """(F, 3, 2) texture coordinates of each face corner."""
-        return self.uvs[self.face_uvs]
+        """(F, 3, 2) texture coordinates of each face corner, gathered once (every render
+        reads them, and a topology never changes)."""
+        if "_face_uv_coords" not in self.__dict__:
+            self.__dict__["_face_uv_coords"] = self.uvs[self.face_uvs]
+        return self.__dict__["_face_uv_coords"]
 
     @functools.cached_property
     def vertex_span(self) -> tuple[int, int]:
