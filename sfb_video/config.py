@@ -324,9 +324,10 @@ class VideoConfig(_Checked):
     global_samples: int = bounded(25, ge=1)
     """Frames in the global median."""
     background_tolerance: float = bounded(0.05, ge=0, le=1)
-    """Where the frames disagree on a pixel, its background is the value most of them agree on
-    (every channel within this much of it) rather than their median: objects passing differ
-    from one another, the background agrees with itself. 0: the plain median."""
+    """At a clip's start (a running median's first ``background_window`` frames), where no other
+    frame backs the median's value, the background is the value most frames agree on (every
+    channel within this much): objects passing differ from one another, the scene agrees with
+    itself. 0: the plain median."""
     exposure_fraction: float = bounded(1.0, gt=0, le=1)
     """Share of the frame interval the shutter is open. The motion is continued across the gap
     (1 / fraction - 1 exposures long) to predict the next frame's start."""

@@ -4,14 +4,14 @@ Three sources, as the paper and users need them:
 - ``running``: the per-pixel median of the K frames before this one (paper: K = 5). The first
   K frames have no K predecessors; they take the median of the other frames among the first
   K + 1, so the clip's start gets a background too. Only K + 1 frames are held in memory.
+  There, where no other frame backs the median's value, the value most of those frames agree
+  on is taken instead (``video.background_tolerance``): the clip's first movers pass through
+  all of them, and two objects following one path cover it in most, each in another colour,
+  while the frames that show the scene agree.
 - ``global``: the median of frames spread evenly over the whole clip (a first pass reads them);
   for a camera that never moves and objects that never rest.
 - a user-supplied image.
 
-Where the frames of a median disagree on a pixel and no other frame backs the median's value,
-the value most of them agree on is taken instead (``video.background_tolerance``): two objects
-following one path cover it in most frames, each in another colour, and the frames that show
-the scene agree.
 """
 
 from __future__ import annotations
@@ -137,7 +137,7 @@ def _paired(frame: Frame, background: torch.Tensor, seen: torch.Tensor | None = 
 
 def running_median(frames: Iterable[Frame], window: int, tolerance: float = 0.0) -> Iterator[FrameWithBackground]:
     """Pair each frame with the median of the ``window`` frames before it (see module docstring;
-    with a ``tolerance``, the value most of them agree on: :func:`_consensus`).
+    at the clip's start, with a ``tolerance``, the value most frames agree on: :func:`_consensus`).
 
     A moving camera's frames are taken a reference (a segment) at a time: a new reference's
     frames start a background of their own, and a frame that did not register is no part of
@@ -186,7 +186,7 @@ def _running_median(
         head, previous = [], deque(carried, maxlen=window)
     for frame in chain(head[window:], stream):
         known = list(previous)
-        background = _median([f.image for f in known], [_cover(f) for f in known], tolerance) if known else frame.image
+        background = _median([f.image for f in known], [_cover(f) for f in known]) if known else frame.image
         yield _paired(frame, background, _seen(known))
         if usable(frame):
             previous.append(frame)
@@ -194,11 +194,7 @@ def _running_median(
 
 @timed("background")
 def global_median(
-    path: Path,
-    samples: int,
-    frame_count: int | None,
-    motion: CameraMotion | None = None,
-    tolerance: float = 0.0,
+    path: Path, samples: int, frame_count: int | None, motion: CameraMotion | None = None
 ) -> torch.Tensor:
     """(3, H, W) float32 median of up to ``samples`` frames spread evenly over the clip at
     ``path`` (registered by ``motion`` when the camera moves)."""
@@ -214,7 +210,7 @@ def global_median(
         raise SfbError(
             f"{path}: no frame registered with the first for a global background; use video.background=running"
         )
-    return as_float(_median([_quantised(f.image) for f in kept], [_cover(f) for f in kept], tolerance))
+    return as_float(_median([_quantised(f.image) for f in kept], [_cover(f) for f in kept]))
 
 
 def _quantised(image: torch.Tensor) -> torch.Tensor:
@@ -285,7 +281,7 @@ def with_backgrounds(
             "background",
             fixed_background(
                 stream,
-                global_median(path, config.global_samples, frame_count, motion, config.background_tolerance),
+                global_median(path, config.global_samples, frame_count, motion),
             ),
         )
     raise ConfigError(f"video.background must be 'running' or 'global', got {config.background!r}")

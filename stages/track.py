@@ -114,9 +114,9 @@ def with_neighbours(
     slow mover still covers much the same pixels. At a clip's ends only one side has a frame two
     away (the adjacent frame's streak would cut off this one's end), and the frame three away on
     that side joins it: one frame alone drops whatever passes there two frames later, as an
-    object following another along its path does, while a slow mover covers both. A change of
-    the scene still shows in the later neighbour and the frame after it. Only a clip of three
-    frames or fewer falls back on the adjacent frames.
+    object following another along its path does, while a slow mover covers both (and a change
+    of the scene still shows in both later frames). Only a clip of three frames or fewer falls
+    back on the adjacent frames.
     """
     # Frames t - 3 .. t - 1: their registrations and masks only (not their pixels).
     history: deque[tuple[Frame, torch.Tensor]] = deque(maxlen=3)
@@ -156,22 +156,16 @@ def with_neighbours(
         history.append((Frame(frame.index, torch.empty(0), frame.registered), mask))
         # Only what still shows in a later frame is a scene change: a track that passes the same
         # place twice (a circular swing) shows the object where an earlier frame had it. A
-        # change stays, so it must show in the frame after the later one too, where there is
-        # one: an object that follows this one along its path two frames behind fills this
-        # one's place two frames later, not three.
-        witnesses = [f for f, _ in later]
-        if len(later) == 1 and len(after) > 2 and later[0] is after[1] and after[2] is not None:
-            witnesses.append(after[2][0])
-        still = None
-        for witness in witnesses:
-            shows = still_there(frame.pixels, frame.background_pixels, witness.pixels)
-            still = shows if still is None else still & shows
+        # change stays: with two later frames, it still shows in both.
+        stills = [still_there(frame.pixels, frame.background_pixels, f.pixels) for f, _ in later]
+        if len(stills) == 2:
+            stills = [stills[0] & stills[1]] * 2
         return (
             frame,
             mask,
             [
                 *(Neighbour(m, torch.zeros_like(m)) for m in before),
-                *(Neighbour(m, still) for _, m in later),
+                *(Neighbour(m, still) for (_, m), still in zip(later, stills, strict=True)),
             ],
         )
 

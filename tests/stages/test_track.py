@@ -161,20 +161,3 @@ def test_a_track_goes_on_where_its_streak_moved_on_though_its_fits_lag_on_speed(
     x, y = found.centroids[label]
     assert math.hypot(x - own[0], y - own[1]) < 1.5, (x, y, own, other)
 
-
-def test_an_object_following_two_frames_behind_is_no_change_of_the_scene() -> None:
-    # Frames 2 and 4 show a dark object at pixel (0, 0) (the second following the first along
-    # its path), frame 5 the scene there again; a line drawn over the video at (3, 7) stays
-    # from frame 2 on. Only the line still shows in both frames after frame 2's later neighbour.
-    config = load_config("default", ["detect.open_px=1", "detect.weak_threshold=0.5"])
-    frames = []
-    for k in range(8):
-        pixels = torch.full((3, 4, 8), 0.5)
-        if k in (2, 4):
-            pixels[:, 0, 0] = 0.0
-        if k >= 2:
-            pixels[:, 3, 7] = 1.0
-        frames.append(FrameWithBackground(k, pixels, torch.full((3, 4, 8), 0.5)))
-    near = {frame.index: n for frame, _, n in with_neighbours(iter(frames), config)}
-    still = near[2][-1].still
-    assert not still[0, 0] and still[3, 7]
