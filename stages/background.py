@@ -4,14 +4,14 @@ Three sources, as the paper and users need them:
 - ``running``: the per-pixel median of the K frames before this one (paper: K = 5). The first
   K frames have no K predecessors; they take the median of the other frames among the first
   K + 1, so the clip's start gets a background too. Only K + 1 frames are held in memory.
-  There, where no other frame backs the median's value, the value most of those frames agree
-  on is taken instead (``video.background_tolerance``): the clip's first movers pass through
-  all of them, and two objects following one path cover it in most, each in another colour,
-  while the frames that show the scene agree.
+  There (and at a new reference's start, when a pan carries fewer than K frames over), where
+  no other frame backs the median's value, the value most of those frames agree on is taken
+  instead (``video.background_tolerance``): the clip's first movers pass through all of them,
+  and two objects following one path cover it in most, each in another colour, while the
+  frames that show the scene agree.
 - ``global``: the median of frames spread evenly over the whole clip (a first pass reads them);
   for a camera that never moves and objects that never rest.
 - a user-supplied image.
-
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ def _median(
 ) -> torch.Tensor:
     """(3, H, W) per-pixel background of (3, H, W) frames, in their dtype: the median (torch
     takes the lower middle value of an even count, so a uint8 median is exactly the float one,
-    scaled), or with a ``tolerance`` the value most frames agree on (:func:`_consensus`).
+    scaled); with a ``tolerance``, where no other frame backs the median's value, the value
+    most frames agree on (:func:`_consensus`).
 
     ``covers``: per frame the (H, W) bool pixels it saw (a registered frame's), or None for all;
     a pixel's median is then of the frames that saw it (of all, where none did).
@@ -93,7 +94,7 @@ def _consensus(band: torch.Tensor, median: torch.Tensor, seen: torch.Tensor | No
     near = (v - median[:, disputed].float()[None]).abs().amax(1)  # (K, n)
     backed = ((near <= tolerance) & counted).sum(0)  # the frames that agree with the median
     pick = torch.where(count == count.amax(0), near, torch.inf).argmin(0)  # (n,)
-    members = agree.permute(2, 0, 1)[torch.arange(pick.numel()), pick].T  # (K, n)
+    members = agree.permute(2, 0, 1)[torch.arange(pick.numel(), device=pick.device), pick].T  # (K, n)
     total = members.sum(0)
     # The median stays wherever another frame backs it (a slow mover covering a pixel in most
     # frames shows much the same there: taking it for the scene keeps it out of the difference,

@@ -88,7 +88,7 @@ class MeshTopology:
 
     def face_uv_coords(self) -> torch.Tensor:
         """(F, 3, 2) texture coordinates of each face corner, gathered once (every render
-        reads them, and a topology never changes)."""
+        reads them, and a topology never changes): read-only, shared by every caller."""
         if "_face_uv_coords" not in self.__dict__:
             self.__dict__["_face_uv_coords"] = self.uvs[self.face_uvs]
         return self.__dict__["_face_uv_coords"]
@@ -107,6 +107,8 @@ class MeshTopology:
         moved = MeshTopology(*(getattr(self, f).to(device) for f in self.__dataclass_fields__))
         if "vertex_span" in self.__dict__:
             moved.__dict__["vertex_span"] = self.vertex_span
+        if "_face_uv_coords" in self.__dict__:  # every render moves its topology (a no-op copy)
+            moved.__dict__["_face_uv_coords"] = self.__dict__["_face_uv_coords"].to(device)
         return moved
 
 

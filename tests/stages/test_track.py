@@ -160,4 +160,3 @@ def test_a_track_goes_on_where_its_streak_moved_on_though_its_fits_lag_on_speed(
     (label, _), _, _ = followed
     x, y = found.centroids[label]
     assert math.hypot(x - own[0], y - own[1]) < 1.5, (x, y, own, other)
-
