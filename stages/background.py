@@ -279,10 +279,6 @@ def with_backgrounds(
         if motion is not None and motion.references > 1:
             raise SfbError("the camera pans beyond its first view: video.background=global needs one view; use running")
         return timed_iter(
-            "background",
-            fixed_background(
-                stream,
-                global_median(path, config.global_samples, frame_count, motion),
-            ),
+            "background", fixed_background(stream, global_median(path, config.global_samples, frame_count, motion))
         )
     raise ConfigError(f"video.background must be 'running' or 'global', got {config.background!r}")
