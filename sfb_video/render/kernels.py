@@ -63,10 +63,12 @@ def _nearest_faces(
             order; front: (T, F) bool, which faces face the camera.
     """
     num_t, num_f = uv.shape[0], faces.shape[0]
-    best = np.full(num_t * height * width, -np.inf, dtype=np.float32)
-    owner = np.full(num_t * height * width, -1, dtype=np.int64)
-    front = np.zeros((num_t, num_f), dtype=np.bool_)
-    keep = np.zeros((num_t, num_f), dtype=np.bool_)
+    best = np.empty(num_t * height * width, dtype=np.float32)
+    owner = np.empty(num_t * height * width, dtype=np.int64)
+    fill(best, -np.inf)
+    fill(owner, -1)
+    front = np.empty((num_t, num_f), dtype=np.bool_)
+    keep = np.empty((num_t, num_f), dtype=np.bool_)
     min_area32 = np.float32(min_area)
     # The renders write disjoint parts of ``best`` and ``owner``: one per thread. Candidates are
     # numbered in (render, face) order, so each render's first number is counted beforehand.
@@ -80,7 +82,9 @@ def _nearest_faces(
             keep[t, f] = abs(area) > min_area32 and (area < 0 or not closed)
     first = np.zeros(num_t + 1, dtype=np.int64)
     for t in range(num_t):
-        first[t + 1] = first[t] + np.count_nonzero(keep[t])
+        first[t + 1] = first[t]
+        for f in range(num_f):
+            first[t + 1] += keep[t, f]
     candidates = np.empty((first[num_t], 2), dtype=np.int64)
     for t in prange(num_t):
         tri = np.empty((3, 2), dtype=np.float32)
@@ -89,14 +93,68 @@ def _nearest_faces(
         for f in range(num_f):
             if not keep[t, f]:
                 continue
+            candidates[k, 0], candidates[k, 1] = t, f
+            k += 1
             for i in range(3):
                 tri[i, 0], tri[i, 1] = uv[t, faces[f, i], 0], uv[t, faces[f, i], 1]
+            # Most faces of a fitted mesh are smaller than a pixel: skip those holding no centre.
+            if not _holds_centre(tri, height, width):
+                continue
+            for i in range(3):
                 inv_z[i] = np.float32(1.0) / depth[t, faces[f, i]]
-            candidates[k, 0], candidates[k, 1] = t, f
-            _scan_face(tri, inv_z, t * height * width, k, height, width, best, owner)
-            k += 1
-    pix = np.nonzero(owner >= 0)[0]
-    return pix, owner[pix], best[pix], candidates, front
+            _scan_face(tri, inv_z, t * height * width, k - 1, height, width, best, owner)
+    pix = _claimed(owner)
+    cand = np.empty(pix.shape[0], dtype=np.int64)
+    inv_z_at = np.empty(pix.shape[0], dtype=np.float32)
+    for n in range(pix.shape[0]):
+        cand[n], inv_z_at[n] = owner[pix[n]], best[pix[n]]
+    return pix, cand, inv_z_at, candidates, front
+
+
+def fill(array: np.ndarray, value: float) -> None:
+    """Set every element of the contiguous ``array`` to ``value``.
+
+    Written as a loop on purpose: in a ``parallel`` kernel numba turns array expressions and
+    ``np.full`` into parallel loops of their own, each a fork and join, and at the fitter's
+    sizes those cost several times the work (measured: 455 us against 65 us for a backward
+    pass's buffers).
+    """
+    flat = array.reshape(-1)
+    for i in range(flat.shape[0]):
+        flat[i] = value
+
+
+def add_parts(target: np.ndarray, parts: np.ndarray) -> None:
+    """target += parts[0] + parts[1] + ..., in that order (contiguous arrays; see :func:`fill`)."""
+    flat = target.reshape(-1)
+    rows = parts.reshape(parts.shape[0], -1)
+    for c in range(rows.shape[0]):
+        for i in range(flat.shape[0]):
+            flat[i] += rows[c, i]
+
+
+def _claimed(owner: np.ndarray) -> np.ndarray:
+    """(N,) int64 the ascending indices where the flat ``owner`` is not -1 (see :func:`fill`)."""
+    count = 0
+    for i in range(owner.shape[0]):
+        count += owner[i] >= 0
+    indices = np.empty(count, dtype=np.int64)
+    n = 0
+    for i in range(owner.shape[0]):
+        if owner[i] >= 0:
+            indices[n] = i
+            n += 1
+    return indices
+
+
+def _holds_centre(tri: np.ndarray, height: int, width: int) -> bool:
+    """Whether the (3, 2) screen triangle's bounding box holds a pixel centre in the image (the
+    scan of :func:`_scan_face` writes none otherwise)."""
+    x_lo = max(math.ceil(min(tri[0, 0], tri[1, 0], tri[2, 0])), 0)
+    x_hi = min(math.floor(max(tri[0, 0], tri[1, 0], tri[2, 0])), width - 1)
+    y_lo = max(math.ceil(min(tri[0, 1], tri[1, 1], tri[2, 1])), 0)
+    y_hi = min(math.floor(max(tri[0, 1], tri[1, 1], tri[2, 1])), height - 1)
+    return x_lo <= x_hi and y_lo <= y_hi
 
 
 def _scan_face(
@@ -172,8 +230,10 @@ def _nearest_edges(
         closest contour edge; side: (Q,) int64 which face of the edge (0 or 1) faces the camera.
     """
     num_t = uv.shape[0]
-    best = np.full(num_t * height * width, np.inf, dtype=np.float32)
-    owner = np.full(num_t * height * width, -1, dtype=np.int64)
+    best = np.empty(num_t * height * width, dtype=np.float32)
+    owner = np.empty(num_t * height * width, dtype=np.int64)
+    fill(best, np.inf)
+    fill(owner, -1)
     r2 = np.float32(radius * radius)
     for t in prange(num_t):  # disjoint parts of ``best`` and ``owner``: one render per thread
         for e in range(edges.shape[0]):
@@ -203,12 +263,13 @@ def _nearest_edges(
                     if d2 <= r2 and d2 <= best[key]:
                         best[key] = d2
                         owner[key] = t * edges.shape[0] + e
-    pix = np.nonzero(owner >= 0)[0]
-    t_idx, edge = owner[pix] // edges.shape[0], owner[pix] % edges.shape[0]
-    side = np.zeros(pix.shape[0], dtype=np.int64)
+    pix = _claimed(owner)
+    t_idx = np.empty(pix.shape[0], dtype=np.int64)
+    edge = np.empty(pix.shape[0], dtype=np.int64)
+    side = np.empty(pix.shape[0], dtype=np.int64)
     for n in range(pix.shape[0]):
-        if edge_faces[edge[n], 1] >= 0 and not front[t_idx[n], edge_faces[edge[n], 0]]:
-            side[n] = 1
+        t_idx[n], edge[n] = owner[pix[n]] // edges.shape[0], owner[pix[n]] % edges.shape[0]
+        side[n] = edge_faces[edge[n], 1] >= 0 and not front[t_idx[n], edge_faces[edge[n], 0]]
     return pix, t_idx, edge, side
 
 
@@ -236,6 +297,10 @@ def compile_kernel(function: Callable[..., Any], inline: bool = False, parallel:
 
 if njit is not None:
     _scan_face = compile_kernel(_scan_face, inline=True)
+    fill = compile_kernel(fill, inline=True)
+    add_parts = compile_kernel(add_parts, inline=True)
+    _claimed = compile_kernel(_claimed, inline=True)
+    _holds_centre = compile_kernel(_holds_centre, inline=True)
     _nearest_faces = compile_kernel(_nearest_faces, parallel=True)
     _nearest_edges = compile_kernel(_nearest_edges, parallel=True)
 
