@@ -29,18 +29,30 @@ def _on_sigint(signum: int, frame: FrameType | None) -> None:
         raise KeyboardInterrupt
 
 
-@contextmanager
-def kernel_call() -> Iterator[None]:
-    """Hold a SIGINT that arrives inside this block until its end (where it is raised)."""
-    global _inside, _held
-    _inside += 1
-    try:
-        yield
-    finally:
+class _KernelCall:
+    """The block of :func:`kernel_call`: a class, not a generator, because a fit makes some
+    200,000 kernel calls and contextlib's machinery cost more than the counting."""
+
+    __slots__ = ()
+
+    def __enter__(self) -> None:
+        global _inside
+        _inside += 1
+
+    def __exit__(self, kind: type[BaseException] | None, *_: object) -> None:
+        global _inside, _held
         _inside -= 1
-    if _held and not _inside:
-        _held = False
-        raise KeyboardInterrupt
+        if kind is None and _held and not _inside:
+            _held = False
+            raise KeyboardInterrupt
+
+
+_KERNEL_CALL = _KernelCall()
+
+
+def kernel_call() -> _KernelCall:
+    """Hold a SIGINT that arrives inside this block until its end (where it is raised)."""
+    return _KERNEL_CALL
 
 
 @contextmanager

@@ -83,8 +83,10 @@ class MeshTopology:
         return int(self.faces.shape[0])
 
     def is_closed(self) -> bool:
-        """True when every edge has a face on both sides (a watertight mesh)."""
-        return bool((self.edge_faces[:, 1] >= 0).all())
+        """True when every edge has a face on both sides (a watertight mesh); found once."""
+        if "_closed" not in self.__dict__:
+            self.__dict__["_closed"] = bool((self.edge_faces[:, 1] >= 0).all())
+        return self.__dict__["_closed"]
 
     def face_uv_coords(self) -> torch.Tensor:
         """(F, 3, 2) texture coordinates of each face corner, gathered once (every render
@@ -104,10 +106,16 @@ class MeshTopology:
         return check_faces(self.faces, None)
 
     def to(self, device: torch.device | str) -> MeshTopology:
+        """This topology on ``device``: itself where it is there already (every render moves its
+        topology), else a copy that keeps what was found once (span, closedness, face UVs)."""
+        device = torch.device(device)
+        if all(getattr(self, f).device == device for f in self.__dataclass_fields__):
+            return self
         moved = MeshTopology(*(getattr(self, f).to(device) for f in self.__dataclass_fields__))
-        if "vertex_span" in self.__dict__:
-            moved.__dict__["vertex_span"] = self.vertex_span
-        if "_face_uv_coords" in self.__dict__:  # every render moves its topology (a no-op copy)
+        for key in ("vertex_span", "_closed"):
+            if key in self.__dict__:
+                moved.__dict__[key] = self.__dict__[key]
+        if "_face_uv_coords" in self.__dict__:
             moved.__dict__["_face_uv_coords"] = self.__dict__["_face_uv_coords"].to(device)
         return moved
 

@@ -34,19 +34,27 @@ def _tv_backward(texture: np.ndarray, grad: float, out: np.ndarray) -> None:
     channels, height, width = texture.shape
     down = grad / max(channels * (height - 1) * width, 1)
     right = grad / max(channels * height * (width - 1), 1)
-    out[:] = 0
+    # Each texel gathers the signs of its four differences (sign(0) = 0, as autograd's
+    # derivative of abs): written as scattered additions into its neighbours this pass took
+    # 3.5x the forward pass.
     for c in range(channels):
         for y in range(height):
             for x in range(width):
-                # sign(0) = 0, as autograd's derivative of abs.
+                v = texture[c, y, x]
+                g = 0.0
+                if y > 0:
+                    d = v - texture[c, y - 1, x]
+                    g += ((d > 0) - (d < 0)) * down
                 if y + 1 < height:
-                    s = np.sign(texture[c, y + 1, x] - texture[c, y, x]) * down
-                    out[c, y + 1, x] += s
-                    out[c, y, x] -= s
+                    d = texture[c, y + 1, x] - v
+                    g -= ((d > 0) - (d < 0)) * down
+                if x > 0:
+                    d = v - texture[c, y, x - 1]
+                    g += ((d > 0) - (d < 0)) * right
                 if x + 1 < width:
-                    s = np.sign(texture[c, y, x + 1] - texture[c, y, x]) * right
-                    out[c, y, x + 1] += s
-                    out[c, y, x] -= s
+                    d = texture[c, y, x + 1] - v
+                    g -= ((d > 0) - (d < 0)) * right
+                out[c, y, x] = g
 
 
 def _laplacian_forward(vertices: np.ndarray, edges: np.ndarray, lap: np.ndarray, inverse: np.ndarray) -> float:
