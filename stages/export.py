@@ -49,7 +49,7 @@ from sfb_video.stages.composite import BLUR_POSES, explained, fitted_region, reg
 from sfb_video.stages.detect import difference_image, threshold_difference
 from sfb_video.stages.types import FrameStatus, FrameWithBackground, Registered, Window
 from sfb_video.stages.windows import frame_windows, with_joint
-from sfb_video.video import VideoWriter
+from sfb_video.video import OUTPUT_PRESET, VideoWriter
 
 
 @dataclass(frozen=True)
@@ -503,7 +503,7 @@ def export_frames(
             fitted.setdefault(s.index, []).append(s)
     joint = _Windows(folder, windows)
     ensure_folder(folder / MESHES)
-    with VideoWriter(folder / TSR_VIDEO, fps * n, *size) as video:
+    with VideoWriter(folder / TSR_VIDEO, fps * n, *size, preset=OUTPUT_PRESET) as video:
         for frame in frames:
             recorder.log_frame(frame.index, frame.pixels, frame.background_pixels)
             difference = difference_image(frame.pixels, frame.background_pixels)

@@ -22,7 +22,7 @@ from sfb_video.model.scene import ObjectState
 from sfb_video.render import MeshRenderer
 from sfb_video.run_folder import NOVEL_VIEWS, ensure_folder, novel_view_path
 from sfb_video.stages.windows import final_results
-from sfb_video.video import VideoWriter
+from sfb_video.video import OUTPUT_PRESET, VideoWriter
 
 SIZE = (320, 240)
 """Width and height of the turntable images."""
@@ -72,7 +72,7 @@ def write_novel_views(folder: Path, config: Config, frames: list[int], views: in
         images = turntable(results[key].state, views, config)
         ensure_folder(folder / NOVEL_VIEWS)
         path = novel_view_path(folder, *key)
-        with VideoWriter(path, 24.0, SIZE[0], SIZE[1]) as video:
+        with VideoWriter(path, 24.0, SIZE[0], SIZE[1], preset=OUTPUT_PRESET) as video:
             for image in images:
                 video.write(image)
         step = max(1, views // STRIP_VIEWS)
