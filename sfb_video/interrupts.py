@@ -30,8 +30,8 @@ def _on_sigint(signum: int, frame: FrameType | None) -> None:
 
 
 class _KernelCall:
-    """The block of :func:`kernel_call`: a class, not a generator, because a fit makes some
-    200,000 kernel calls and contextlib's machinery cost more than the counting."""
+    """The block of :func:`kernel_call`: a class, not a generator, because a run makes some
+    220,000 kernel calls and contextlib's machinery cost more than the counting."""
 
     __slots__ = ()
 

@@ -427,7 +427,7 @@ if kernels.njit is not None:
 def _flat(uv: torch.Tensor, lists: PixelLists, topology: MeshTopology) -> _Lists:
     """The arrays of ``lists`` and ``topology`` the passes read, as contiguous numpy arrays (the
     passes look up the edges' ends, faces and corners themselves: gathered here, as tensors,
-    they cost half as much as the forward pass itself)."""
+    they cost 150 us a call, two thirds of the forward pass itself)."""
     arrays = (
         topology.faces,
         topology.face_uv_coords().to(uv.dtype),
