@@ -21,6 +21,7 @@ def _interrupt_after(seconds: float) -> threading.Timer:
 
 
 @pytest.mark.skipif(kernels.njit is None, reason="numba is not installed")
+@pytest.mark.usefixtures("ctrl_c")
 def test_a_sigint_amid_kernel_calls_is_a_keyboard_interrupt() -> None:
     # Without the handler every one of these came out as "SystemError: CPUDispatcher(...)
     # returned a result with an exception set".
@@ -37,6 +38,7 @@ def test_a_sigint_amid_kernel_calls_is_a_keyboard_interrupt() -> None:
             timer.join()
 
 
+@pytest.mark.usefixtures("ctrl_c")
 def test_a_sigint_inside_a_kernel_call_is_raised_at_its_end() -> None:
     reached = []
     with sigint_outside_kernels(), pytest.raises(KeyboardInterrupt), kernel_call():

@@ -121,6 +121,7 @@ def test_a_replacement_interrupted_keeps_the_old_run_and_resumes(
     assert not staged.exists() and not _temporaries(out)
 
 
+@pytest.mark.usefixtures("ctrl_c")
 def test_a_replacement_stopped_by_sigint_keeps_the_old_run(clip: Path, finished: Path, tmp_path: Path) -> None:
     out = _copy(finished, tmp_path)
     before = _contents(out)
