@@ -213,7 +213,9 @@ def fit_track_window(
     shown = [i for i in members if shown is None or i in shown] or list(members)
     if config.joint.refine != "off":
         frames = [crops[i] for i in shown]
-        result = refine_frames(result, frames, config.fit, config.render, pose=config.joint.refine == "pose")
+        pose = config.joint.refine == "pose"
+        steps = min(config.fit.warm_iterations, config.joint.refine_iterations)
+        result = refine_frames(result, frames, config.fit, config.render, pose, steps)
     explained = {
         i: (_quality(single(i).state, crops[i], config), _quality(result.state(i), crops[i], config)) for i in shown
     }

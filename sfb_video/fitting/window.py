@@ -600,6 +600,7 @@ def refine_frames(
     fit_config: FitConfig,
     render_config: RenderConfig,
     pose: bool = False,
+    iterations: int | None = None,
 ) -> JointResult:
     """Each frame refined from the joint fit: the shared mesh held (the window stays one
     object), the frame's own texture (and, with ``pose``, its pose) fitted from the joint fit's,
@@ -607,10 +608,14 @@ def refine_frames(
     less well than its own would; the refined frame keeps the joint fit's shape (and place) and
     takes back what the frame alone can tell (its shading; its exact pose).
 
+    Args:
+        iterations: at most this many steps a frame (None: ``fit_config.warm_iterations``).
+
     Returns:
         ``result`` with ``refined`` holding every frame's texture, motion and loss terms.
     """
-    config = dataclasses.replace(fit_config, deform=False, learn_motion=pose)
+    steps = fit_config.warm_iterations if iterations is None else iterations
+    config = dataclasses.replace(fit_config, deform=False, learn_motion=pose, warm_iterations=steps)
     refined = {}
     for frame in frames:
         motion = result.trajectory.frame_motion(frame.index)
