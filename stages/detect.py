@@ -109,7 +109,6 @@ def threshold_difference(
     return _opened(hysteresis(difference, strong, weak_level(difference, config, known)), config)
 
 
-@timed("detect")
 @dataclass(frozen=True)
 class Neighbour:
     """What the slow-mover test needs of a frame two (or, at a clip's ends, three) before or after.
