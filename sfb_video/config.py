@@ -273,7 +273,7 @@ class JointConfig(_Checked):
     """After a window's joint fit, refine each of its frames from it, the shared mesh held:
     ``texture`` fits the frame's own texture on the window's trajectory, ``pose`` its texture
     and pose (stopping on a plateau); ``off`` keeps the window's."""
-    refine_iterations: int = bounded(150, ge=1)
+    refine_iterations: int = bounded(75, ge=1)
     """At most this many steps for each refined frame, and no more than ``fit.warm_iterations``
     (each is a warm start from the window's fit)."""
     laplacian_end: float = bounded(0.1, gt=0, le=1)

@@ -12,6 +12,7 @@ import torch
 
 from sfb_video.config import load_config
 from sfb_video.evaluation.synthetic import score_state
+from sfb_video.fitting import window as window_module
 from sfb_video.fitting.frame import FitResult, fit_frame
 from sfb_video.fitting.path import Seed, measured_exposure
 from sfb_video.fitting.window import (
@@ -177,6 +178,27 @@ def test_refined_frames_explain_each_frame_at_least_as_well_as_its_single_fit(
     assert all(torch.equal(refined.state(i).vertices, result.vertices) for i in range(4))
     rotation = _score(clip, [refined.state(i) for i in range(4)], "rotation_err_deg")
     assert max(rotation) < 15
+
+
+def test_each_refined_frame_runs_at_most_its_step_budget(
+    clip: SyntheticClip, spun: tuple[list[FitResult], JointResult], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _, result = spun
+    steps: list[int] = []
+
+    def counted(*args: object) -> FitResult:
+        fit = fit_frame(*args)  # type: ignore[arg-type]
+        steps.append(fit.iterations)
+        return fit
+
+    monkeypatch.setattr(window_module, "fit_frame", counted)
+    # A plateau patience beyond the budget: only the budget can stop these fits.
+    config = dataclasses.replace(SPIN.fit, plateau_patience=1000)
+    refine_frames(result, _frames(clip)[:2], config, SPIN.render, pose=True, iterations=7)
+    assert steps == [7, 7]
+    steps.clear()
+    refine_frames(result, _frames(clip)[:1], dataclasses.replace(config, warm_iterations=9), SPIN.render, pose=True)
+    assert steps == [9]
 
 
 def test_a_path_start_extrapolated_towards_the_camera_stays_in_front_of_it(clip: SyntheticClip) -> None:
