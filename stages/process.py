@@ -143,7 +143,14 @@ def read_run(folder: Path) -> tuple[dict, list[FrameStatus]]:
     except (OSError, json.JSONDecodeError) as exc:
         raise SfbError(f"cannot read the run in {folder}: {exc}") from None
     return record, [
-        FrameStatus(r["index"], r["status"], None if r["box"] is None else tuple(r["box"]), r["note"], r.get("track"))
+        FrameStatus(
+            r["index"],
+            r["status"],
+            None if r["box"] is None else tuple(r["box"]),
+            r["note"],
+            r.get("track"),
+            r.get("touched", False),
+        )
         for r in rows
     ]
 

@@ -520,7 +520,7 @@ def track_and_fit(
                     save_result(folder, result)
                 if tracker not in live:
                     live.append(tracker)
-                results.append(FrameStatus(frame.index, "fitted", detection.box, note, track))
+                results.append(FrameStatus(frame.index, "fitted", detection.box, note, track, shared))
                 report_result = result
             if report is not None:
                 report(results[-1], report_result)

@@ -141,13 +141,15 @@ class Prediction:
 @dataclass(frozen=True)
 class FrameStatus:
     """What happened to one frame: ``fitted``, ``no_object`` or ``failed`` (with the reason),
-    and for a fitted frame, the number of its track (0, 1, ... in the order tracks start)."""
+    and for a fitted frame, the number of its track (0, 1, ... in the order tracks start) and
+    whether its streak ``touched`` another track's (their blob's pixels shared out by nearness)."""
 
     index: int
     status: str
     box: tuple[int, int, int, int] | None = None
     note: str = ""
     track: int | None = None
+    touched: bool = False
 
 
 Window = tuple[int, list[int]]

@@ -10,7 +10,8 @@ whatever the clip's length. A window's fit is saved into the run folder when don
 unit a resumed run reuses. The first window of a track chooses a shape among
 ``joint.prototypes`` from its streaks and starts its fit from that shape alone; each
 later window starts from its predecessor's mesh, texture and poses on the frames they share, so
-a track keeps one shape. Each window's frames are then refined from its fit (``joint.refine``).
+a track keeps one shape. Each window's frames are then refined from its fit (``joint.refine``),
+but those whose streak touched another object's.
 
 Every export then reads a frame's state from the window that covers it best (the one whose
 middle is nearest, :func:`frame_windows`).
@@ -170,6 +171,7 @@ def fit_track_window(
     camera: PinholeCamera,
     config: Config,
     shown: Collection[int] | None = None,
+    touched: Collection[int] = (),
 ) -> SavedWindow:
     """Fit one window of a track jointly.
 
@@ -185,6 +187,7 @@ def fit_track_window(
         previous: the track's previous window, or None.
         shown: the members whose outputs come from this window (:func:`frame_windows`); None:
             every member. The others are shown from a neighbour, so refining them is wasted.
+        touched: the members whose streak touched another object's: not refined.
     """
     seeds, shape_from, before = [], None, {}
     for index in members:
@@ -212,7 +215,10 @@ def fit_track_window(
     # judged, on all of them: its fit seeds the next window.
     shown = [i for i in members if shown is None or i in shown] or list(members)
     if config.joint.refine != "off":
-        frames = [crops[i] for i in shown]
+        # A frame whose streak touches another object's holds both objects' pixels, and a fit of
+        # that frame alone is drawn to the other's: the window's pose there, held by its other
+        # frames, is the surer.
+        frames = [crops[i] for i in shown if i not in touched]
         pose = config.joint.refine == "pose"
         steps = min(config.fit.warm_iterations, config.joint.refine_iterations)
         result = refine_frames(result, frames, config.fit, config.render, pose, steps)
@@ -258,6 +264,7 @@ def fit_windows(
             done[window_key(window)] = load_window(path)
     pending = [w for w in windows if window_key(w) not in done]
     boxes = {(s.index, s.track): s.box for s in statuses if s.status == "fitted"}
+    touched = {(s.index, s.track) for s in statuses if s.status == "fitted" and s.touched}
     fitted: dict[int, list[int]] = {}  # frame index -> its fitted tracks
     for index, track in boxes:
         if track is not None:
@@ -291,7 +298,15 @@ def fit_windows(
             try:
                 shown = [i for i in members if owner[i, track] == window_key((track, members))]
                 window = fit_track_window(
-                    track, members, own, lambda i, t=track: single((i, t)), previous, camera, config, shown
+                    track,
+                    members,
+                    own,
+                    lambda i, t=track: single((i, t)),
+                    previous,
+                    camera,
+                    config,
+                    shown,
+                    touched={i for i in members if (i, track) in touched},
                 )
             except DivergenceError as exc:
                 # Non-finite from the first step: the frames keep their single-frame fits.

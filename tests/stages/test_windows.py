@@ -119,7 +119,7 @@ def test_only_a_divergence_skips_a_window_and_any_other_error_is_raised(
     monkeypatch.setattr(windows, "window_frame", lambda *args: None)
 
     def fails_with(error: Exception) -> None:
-        def fit(*args: object) -> None:
+        def fit(*args: object, **kwargs: object) -> None:
             raise error
 
         monkeypatch.setattr(windows, "fit_track_window", fit)
@@ -186,7 +186,7 @@ def test_each_window_is_handed_the_frames_it_stands_for(monkeypatch: pytest.Monk
     monkeypatch.setattr(windows, "save_window", lambda *args: None)
     handed: dict[int, list[int]] = {}
 
-    def fit(track: int, members: list[int], *args: object) -> object:
+    def fit(track: int, members: list[int], *args: object, **kwargs: object) -> object:
         handed[members[0]] = list(args[-1])  # type: ignore[call-overload]
         return type("Saved", (), {"accepted": True})()
 
@@ -217,6 +217,58 @@ def test_a_window_refines_and_is_judged_on_the_frames_it_is_shown_for(monkeypatc
     crops = {i: i for i in range(3)}
     saved = windows.fit_track_window(0, [0, 1, 2], crops, lambda i: single, None, CAMERA, load_config("fast"), [1, 2])  # type: ignore[arg-type]
     assert refined == [1, 2] and set(saved.explained) == {1, 2} and saved.accepted
+
+
+def test_a_frame_whose_streak_touched_another_is_not_refined(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Its crop holds both objects' pixels: refined alone, its pose was drawn to the other's.
+    vertices, topology = load_prototype("sphere")
+    motion = Motion(torch.tensor([0.0, 0.0, 5.0]), torch.tensor([0.5, 0.0, 0.0]), torch.eye(3), torch.zeros(3))
+    state = ObjectState(vertices, topology, torch.rand(3, 8, 8), motion)
+    single = type("Single", (), {"state": state, "prototype": "sphere", "losses": {"image": 0.1}})()
+
+    class Joint:
+        def state(self, index: int) -> ObjectState:
+            return state
+
+    refined: list[int] = []
+
+    def refine(result: Joint, frames: list[object], *args: object, **kwargs: object) -> Joint:
+        refined.extend(frames)  # type: ignore[arg-type]
+        return result
+
+    monkeypatch.setattr(windows, "fit_window", lambda *args, **kwargs: Joint())
+    monkeypatch.setattr(windows, "refine_frames", refine)
+    monkeypatch.setattr(windows, "_quality", lambda *args: 0.5)
+    crops = {i: i for i in range(3)}
+    config = load_config("fast")
+    saved = windows.fit_track_window(0, [0, 1, 2], crops, lambda i: single, None, CAMERA, config, touched={1})  # type: ignore[arg-type]
+    # Still judged on every frame it stands for: the window's own pose stands for the touched one.
+    assert refined == [0, 2] and set(saved.explained) == {0, 1, 2}
+
+
+def test_each_window_is_told_which_of_its_frames_touched_another_track(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    config = load_config("fast")
+    statuses = [
+        FrameStatus(i, "fitted", (0, 0, 4, 4), track=t, touched=i in (3, 4) and t == 0)
+        for i in range(5)
+        for t in (0, 1)
+    ]
+    frames = [FrameWithBackground(i, torch.zeros(3, 8, 8), torch.zeros(3, 8, 8)) for i in range(5)]
+    monkeypatch.setattr(windows, "load_result", lambda path: None)
+    monkeypatch.setattr(windows, "window_frame", lambda *args: None)
+    monkeypatch.setattr(windows, "save_window", lambda *args: None)
+    monkeypatch.setattr(windows, "object_paths", lambda *args: {})
+    told: dict[int, set[int]] = {}
+
+    def fit(track: int, members: list[int], *args: object, touched: set[int]) -> object:
+        told[track] = touched
+        return type("Saved", (), {"accepted": True})()
+
+    monkeypatch.setattr(windows, "fit_track_window", fit)
+    windows.fit_windows(iter(frames), tmp_path, statuses, CAMERA, config, torch.device("cpu"))
+    assert told == {0: {3, 4}, 1: set()}
 
 
 def test_a_window_sees_the_other_objects_of_its_frames_as_the_background(
@@ -256,7 +308,7 @@ def test_a_window_sees_the_other_objects_of_its_frames_as_the_background(
         handed[frame.index, result.track] = frame.pixels
 
     monkeypatch.setattr(windows, "window_frame", crop)
-    monkeypatch.setattr(windows, "fit_track_window", lambda *args: type("Saved", (), {"accepted": True})())
+    monkeypatch.setattr(windows, "fit_track_window", lambda *args, **kwargs: type("Saved", (), {"accepted": True})())
     monkeypatch.setattr(windows, "save_window", lambda *args: None)
     windows.fit_windows(iter(frames), tmp_path, statuses, CAMERA, load_config("fast"), torch.device("cpu"))
     paths = {t: torch.from_numpy(path_mask(s.motion, object_radius(s, CAMERA), CAMERA)) for t, s in states.items()}
