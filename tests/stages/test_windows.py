@@ -3,6 +3,7 @@ motion model from the single-frame fits."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -219,22 +220,22 @@ def test_a_window_refines_and_is_judged_on_the_frames_it_is_shown_for(monkeypatc
     assert refined == [1, 2] and set(saved.explained) == {1, 2} and saved.accepted
 
 
-def test_a_frame_whose_streak_touched_another_is_not_refined(monkeypatch: pytest.MonkeyPatch) -> None:
-    # Its crop holds both objects' pixels: refined alone, its pose was drawn to the other's.
+def test_a_frame_whose_streak_touched_another_keeps_the_window_s_pose(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Its crop holds both objects' pixels: its pose, refined alone, was drawn to the other's.
     vertices, topology = load_prototype("sphere")
     motion = Motion(torch.tensor([0.0, 0.0, 5.0]), torch.tensor([0.5, 0.0, 0.0]), torch.eye(3), torch.zeros(3))
     state = ObjectState(vertices, topology, torch.rand(3, 8, 8), motion)
     single = type("Single", (), {"state": state, "prototype": "sphere", "losses": {"image": 0.1}})()
 
+    @dataclasses.dataclass(frozen=True)
     class Joint:
+        refined: dict[int, str] = dataclasses.field(default_factory=dict)
+
         def state(self, index: int) -> ObjectState:
             return state
 
-    refined: list[int] = []
-
-    def refine(result: Joint, frames: list[object], *args: object, **kwargs: object) -> Joint:
-        refined.extend(frames)  # type: ignore[arg-type]
-        return result
+    def refine(result: Joint, frames: list[int], fit: object, render: object, pose: bool, steps: int) -> Joint:
+        return Joint({**result.refined, **{i: "pose" if pose else "texture" for i in frames}})
 
     monkeypatch.setattr(windows, "fit_window", lambda *args, **kwargs: Joint())
     monkeypatch.setattr(windows, "refine_frames", refine)
@@ -242,8 +243,9 @@ def test_a_frame_whose_streak_touched_another_is_not_refined(monkeypatch: pytest
     crops = {i: i for i in range(3)}
     config = load_config("fast")
     saved = windows.fit_track_window(0, [0, 1, 2], crops, lambda i: single, None, CAMERA, config, touched={1})  # type: ignore[arg-type]
-    # Still judged on every frame it stands for: the window's own pose stands for the touched one.
-    assert refined == [0, 2] and set(saved.explained) == {0, 1, 2}
+    # Its own texture on the window's pose; judged, as every frame the window stands for.
+    assert saved.result.refined == {0: "pose", 1: "texture", 2: "pose"}
+    assert set(saved.explained) == {0, 1, 2}
 
 
 def test_each_window_is_told_which_of_its_frames_touched_another_track(
