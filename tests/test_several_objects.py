@@ -15,7 +15,7 @@ import torch
 import sfb_video.stages.track
 from benchmarks import multi_object
 from sfb_video.config import Config, load_config
-from sfb_video.evaluation.objects import box_iou, cover_objects, spurious_tracks
+from sfb_video.evaluation.objects import Coverage, box_iou, cover_objects, spurious_tracks
 from sfb_video.stages.background import running_median
 from sfb_video.stages.process import ProcessOptions, process_clip
 from sfb_video.stages.track import track_and_fit
@@ -131,3 +131,17 @@ def test_a_resumed_run_of_several_tracks_equals_an_uninterrupted_one(
     same = [{k: v for k, v in row.items() if k not in strip} for row in summary["frames"]]
     want = [{k: v for k, v in row.items() if k not in strip} for row in run.summary["frames"]]
     assert json.dumps(same, sort_keys=True) == json.dumps(want, sort_keys=True)
+
+
+def test_runs_are_perturbed_apart_and_summed_up_per_object(capsys: pytest.CaptureFixture[str]) -> None:
+    scales = multi_object.perturbations(4)
+    assert scales[0] == 1.0 and len(set(scales)) == 4 and max(abs(s - 1) for s in scales) <= 2.5e-6
+    found, missed = Coverage(0, 8, 8, 8, tuple(range(8))), Coverage(0, 8, 8, 6, tuple(range(6)))
+    runs = [
+        [multi_object.ObjectRow("crossing", 1, found, 0.70, 25.0, found, 0.80, 25.5, 1.0)],
+        [multi_object.ObjectRow("crossing", 1, missed, 0.76, 26.0, found, 0.78, 25.0, 1.0)],
+    ]
+    multi_object._runs_table(runs)
+    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("| crossing"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[2:] == ["1.00 0.75", "1.00 0.75", "0.730", "0.790", "+0.100 +0.020", "25.50", "25.25", "+0.50 -1.00"]
