@@ -10,8 +10,8 @@ whatever the clip's length. A window's fit is saved into the run folder when don
 unit a resumed run reuses. The first window of a track chooses a shape among
 ``joint.prototypes`` from its streaks and starts its fit from that shape alone; each
 later window starts from its predecessor's mesh, texture and poses on the frames they share, so
-a track keeps one shape. Each window's frames are then refined from its fit (``joint.refine``),
-but those whose streak touched another object's.
+a track keeps one shape. Each window's frames are then refined from its fit (``joint.refine``;
+those whose streak touched another object's, for their texture only).
 
 Every export then reads a frame's state from the window that covers it best (the one whose
 middle is nearest, :func:`frame_windows`).
@@ -187,7 +187,8 @@ def fit_track_window(
         previous: the track's previous window, or None.
         shown: the members whose outputs come from this window (:func:`frame_windows`); None:
             every member. The others are shown from a neighbour, so refining them is wasted.
-        touched: the members whose streak touched another object's: not refined.
+        touched: the members whose streak touched another object's: refined for their texture
+            only, on the window's pose.
     """
     seeds, shape_from, before = [], None, {}
     for index in members:
