@@ -273,7 +273,7 @@ class JointConfig(_Checked):
     """After a window's joint fit, refine each of its frames from it, the shared mesh held:
     ``texture`` fits the frame's own texture on the window's trajectory, ``pose`` its texture
     and pose (stopping on a plateau; a frame whose streak touched another object's, which holds
-    both objects' pixels, its texture only); ``off`` keeps the window's."""
+    both objects' pixels shared out by nearness, its texture only); ``off`` keeps the window's."""
     refine_iterations: int = bounded(75, ge=1)
     """At most this many steps for each refined frame, and no more than ``fit.warm_iterations``
     (each is a warm start from the window's fit)."""

@@ -142,7 +142,8 @@ class Prediction:
 class FrameStatus:
     """What happened to one frame: ``fitted``, ``no_object`` or ``failed`` (with the reason),
     and for a fitted frame, the number of its track (0, 1, ... in the order tracks start) and
-    whether its streak ``touched`` another track's (their blob's pixels shared out by nearness)."""
+    whether its streak ``touched`` another track's: their blob's pixels shared out by nearness
+    (not where another track's streak merged whole into this one's blob: that track coasts)."""
 
     index: int
     status: str

@@ -51,8 +51,8 @@ def test_two_crossing_movers_keep_their_identities_through_the_crossing(tmp_path
     assert len({c.track for c in coverage}) == 2, tracks
     for c in coverage:
         assert c.recall >= 6 / 8 and c.precision >= 6 / 8, (c, tracks)
-    # The frames where their streaks touch are marked, for both tracks (their windows do not
-    # refine them), and only around the crossing.
+    # The frames where their streaks touch are marked, for both tracks (their windows refine
+    # their texture only), and only around the crossing.
     touched = [(s.index, s.track) for s in statuses if s.touched]
     assert (middle, 0) in touched and (middle, 1) in touched, touched
     assert all(abs(index - middle) <= 2 for index, _ in touched), touched

@@ -102,7 +102,7 @@ class WindowFrame:
 @dataclass(frozen=True)
 class Refined:
     """One frame of a window refined from the joint fit: the shared mesh held, its own texture
-    and pose (:func:`refine_frames`).
+    and, where refined with its pose, its pose (:func:`refine_frames`).
 
     Attributes:
         texture: (3, Ht, Wt); motion: the frame's exposure; losses: its single-frame loss terms.
@@ -134,7 +134,8 @@ class JointResult:
             raced against the shapes within ``joint.shape_race`` of it where there are any).
         shapes: per prototype of the footprint's trial, its coarse texture's residual over the
             sphere's (:func:`trial_shapes`).
-        refined: per frame refined after the fit, its own texture and pose (:func:`refine_frames`).
+        refined: per frame refined after the fit, its own texture and motion (the window's
+            trajectory's where its pose was held; :func:`refine_frames`).
     """
 
     prototype: str
