@@ -217,16 +217,12 @@ def fit_track_window(
     shown = [i for i in members if shown is None or i in shown] or list(members)
     if config.joint.refine != "off":
         steps = min(config.fit.warm_iterations, config.joint.refine_iterations)
-        free = [crops[i] for i in shown if i not in touched]
-        refined = refine_frames(result, free, config.fit, config.render, config.joint.refine == "pose", steps)
+        frames = [crops[i] for i in shown]
         # A frame whose streak touches another object's holds both objects' pixels, and a pose
         # fitted to that frame alone is drawn to the other's: the window's pose there, held by
         # its other frames, is the surer. Its texture is still the frame's own.
-        held = [crops[i] for i in shown if i in touched]
-        if held:
-            more = refine_frames(result, held, config.fit, config.render, False, steps)
-            refined = dataclasses.replace(refined, refined={**refined.refined, **more.refined})
-        result = refined
+        pose = config.joint.refine == "pose"
+        result = refine_frames(result, frames, config.fit, config.render, pose, steps, held=touched)
     explained = {
         i: (_quality(single(i).state, crops[i], config), _quality(result.state(i), crops[i], config)) for i in shown
     }

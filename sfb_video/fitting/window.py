@@ -43,6 +43,7 @@ import functools
 import math
 import statistics
 import time
+from collections.abc import Collection
 from dataclasses import dataclass, field
 
 import torch
@@ -602,6 +603,7 @@ def refine_frames(
     render_config: RenderConfig,
     pose: bool = False,
     iterations: int | None = None,
+    held: Collection[int] = (),
 ) -> JointResult:
     """Each frame refined from the joint fit: the shared mesh held (the window stays one
     object), the frame's own texture (and, with ``pose``, its pose) fitted from the joint fit's,
@@ -611,17 +613,19 @@ def refine_frames(
 
     Args:
         iterations: at most this many steps a frame (None: ``fit_config.warm_iterations``).
+        held: the frames whose pose stays the joint fit's even with ``pose``: their texture only.
 
     Returns:
         ``result`` with ``refined`` holding every frame's texture, motion and loss terms.
     """
     steps = fit_config.warm_iterations if iterations is None else iterations
     config = dataclasses.replace(fit_config, deform=False, learn_motion=pose, warm_iterations=steps)
+    texture_only = dataclasses.replace(config, learn_motion=False)
     refined = {}
     for frame in frames:
         motion = result.trajectory.frame_motion(frame.index)
         warm = WarmStart(result.prototype, result.vertices, result.texture, motion, at_streak=False)
-        fit = fit_frame(frame.crop, config, render_config, warm, frame.masks)
+        fit = fit_frame(frame.crop, texture_only if frame.index in held else config, render_config, warm, frame.masks)
         state = fit.state
         refined[frame.index] = Refined(state.texture.cpu(), state.motion.to("cpu"), fit.losses)
     return dataclasses.replace(result, refined=refined)

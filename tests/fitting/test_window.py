@@ -201,6 +201,27 @@ def test_each_refined_frame_runs_at_most_its_step_budget(
     assert steps == [9]
 
 
+def test_a_held_frame_keeps_the_joint_fit_s_pose_and_takes_its_own_texture(
+    clip: SyntheticClip, spun: tuple[list[FitResult], JointResult]
+) -> None:
+    _, result = spun
+    frames = _frames(clip)[:2]
+    refined = refine_frames(result, frames, SPIN.fit, SPIN.render, pose=True, iterations=20, held={1})
+    free = refine_frames(result, frames[1:], SPIN.fit, SPIN.render, pose=True, iterations=20)
+
+    def fields(motion: Motion) -> list[torch.Tensor]:
+        return [motion.x0.cpu(), motion.dx.cpu(), motion.rot0.cpu(), motion.omega.cpu()]
+
+    def same(motion: Motion, start: Motion) -> bool:  # to float rounding of the pose's parameters
+        return all(torch.allclose(a, b, atol=1e-5) for a, b in zip(fields(motion), fields(start), strict=True))
+
+    start = result.trajectory.frame_motion(1)
+    assert same(refined.refined[1].motion, start)
+    assert not torch.equal(refined.refined[1].texture, result.texture.cpu())
+    # Not held, the same frame's pose moves from the joint fit's.
+    assert not same(free.refined[1].motion, start)
+
+
 def test_a_path_start_extrapolated_towards_the_camera_stays_in_front_of_it(clip: SyntheticClip) -> None:
     # The last streak runs fast towards the camera: extrapolated in camera space to the window's
     # end (1 frame interval after its start, 0.3 after the streak's end) its depth falls below

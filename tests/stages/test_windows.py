@@ -234,9 +234,9 @@ def test_a_frame_whose_streak_touched_another_keeps_the_window_s_pose(monkeypatc
         def state(self, index: int) -> ObjectState:
             return state
 
-    # As refine_frames does: the result's refined frames are those of this call alone.
-    def refine(result: Joint, frames: list[int], fit: object, render: object, pose: bool, steps: int) -> Joint:
-        return Joint({i: "pose" if pose else "texture" for i in frames})
+    def refine(result: Joint, frames: list[int], *args: object, held: set[int]) -> Joint:
+        pose = args[2]
+        return Joint({i: "pose" if pose and i not in held else "texture" for i in frames})
 
     monkeypatch.setattr(windows, "fit_window", lambda *args, **kwargs: Joint())
     monkeypatch.setattr(windows, "refine_frames", refine)
