@@ -306,14 +306,16 @@ def main() -> None:
     config = load_config(args.config, told + args.set)
     runs: list[list[ObjectRow]] = []
     for scale in perturbations(args.runs):
-        fit = dataclasses.replace(config.fit, w_texture=config.fit.w_texture * scale)
+        perturbed = dataclasses.replace(
+            config, fit=dataclasses.replace(config.fit, w_texture=config.fit.w_texture * scale)
+        )
         rows: list[ObjectRow] = []
         spurious: dict[str, dict[int, int]] = {}
         seconds: dict[str, float] = {}
         with tempfile.TemporaryDirectory() as tmp:
             for name in args.scenario or SCENARIOS:
                 where = Path(tmp) / name.replace(" ", "_")
-                found, spurious[name], seconds[name] = score_scenario(name, dataclasses.replace(config, fit=fit), where)
+                found, spurious[name], seconds[name] = score_scenario(name, perturbed, where)
                 rows += found
                 print(f"{name}: done in {seconds[name]:.0f} s (all objects)", flush=True)
         print(f"\npreset {args.config} {' '.join(told + args.set)}; fit.w_texture x {scale!r}; 320x240, 8 frames\n")
