@@ -203,11 +203,44 @@ def follow(
     for prediction, option in predictions:
         picked = pick_blob(found, prediction, config.detect, taken)
         if picked is not None:
-            x, y, w, h = (float(v) for v in found.stats[picked[0], :4])
-            distance = math.hypot(x + w / 2 - prediction.centre[0], y + h / 2 - prediction.centre[1])
+            distance = _miss(found, picked[0], prediction)
             if best is None or distance < best[0]:
                 best = (distance, picked, option, prediction)
     return None if best is None else (best[1], best[2], best[3])
+
+
+def _miss(found: FrameBlobs, label: int, prediction: Prediction) -> float:
+    """How far blob ``label``'s box centre lies from ``prediction``'s, in pixels."""
+    x, y, w, h = (float(v) for v in found.stats[label, :4])
+    return math.hypot(x + w / 2 - prediction.centre[0], y + h / 2 - prediction.centre[1])
+
+
+def _choosing_order(
+    found: FrameBlobs, wants: list[tuple[Tracker, tuple[tuple[int, int], FrameResult, Prediction] | None]]
+) -> list[int]:
+    """The order in which tracks choose their blobs (indices into ``wants``: each track and the
+    blob it would take, :func:`follow`): longer tracks first, their predictions being the
+    surest, but of tracks that would take the same blob, the one whose prediction lands nearest
+    it (in its object's diameters) first, at the place of the longest of them.
+
+    Two objects following one path: the lead's streak came out a shred, and the lead's track,
+    the longer by a frame, took the trailing object's blob, which its size outweighed the shred
+    by, though the trail's own prediction lay on it; the tracks swapped objects there.
+    """
+
+    def miss(k: int) -> float:
+        followed = wants[k][1]
+        if followed is None:
+            return math.inf
+        (label, _), _, prediction = followed
+        return _miss(found, label, prediction) / max(prediction.diameter, 1.0)
+
+    # A track that would take no blob is a group of its own.
+    group = [(-1 - k) if w[1] is None else w[1][0][0] for k, w in enumerate(wants)]
+    longest: dict[int, int] = {}
+    for k, (tracker, _) in enumerate(wants):
+        longest[group[k]] = max(longest.get(group[k], 0), tracker.length)
+    return sorted(range(len(wants)), key=lambda k: (-longest[group[k]], miss(k), -wants[k][0].length, k))
 
 
 def follow_box(
@@ -460,17 +493,21 @@ def track_and_fit(
         taken: set[int] = set()
         objects: list[_Claim] = []
         merged: list[tuple[Tracker, int]] = []
-        # Longer tracks choose first: their predictions are the surest.
-        for tracker in sorted(live, key=lambda t: -t.length):
-            predictions = tracker.predictions(frame.index)
-            followed = follow(found, predictions, config)
+        asked = [(t, t.predictions(frame.index)) for t in live]
+        wants = [(t, follow(found, p, config)) for t, p in asked]
+        for k in _choosing_order(found, wants):
+            (tracker, predictions), followed = asked[k], wants[k][1]
             claim = None
             if followed is not None and followed[0][0] in taken:
                 # Its best blob is another track's too: their streaks touch or cross. Shared out
-                # if it can be; else the best blob left, or none (the track coasts).
-                claim = _shared(found, followed, objects, tracker, config)
-                if claim is None:
-                    crossing, followed = followed, follow(found, predictions, config, frozenset(taken))
+                # if it can be; else the best blob left, or none (the track coasts). But a blob
+                # left that lands nearer its prediction is its object: the other's only passed
+                # near (the lead's shred, the trail's blob where the lead was).
+                rest = follow(found, predictions, config, frozenset(taken))
+                if rest is not None and _miss(found, rest[0][0], rest[2]) < _miss(found, followed[0][0], followed[2]):
+                    followed = rest
+                elif (claim := _shared(found, followed, objects, tracker, config)) is None:
+                    crossing, followed = followed, rest
                     if followed is None:
                         tracker.coast()
                         merged.append((tracker, crossing[0][0]))
