@@ -99,7 +99,9 @@ def one_enters_as_one_leaves() -> tuple[list[Layer], list[Layer], np.ndarray]:
 
 def three_and_a_slow_one() -> tuple[list[Layer], list[Layer], np.ndarray]:
     first, background = _layer(seed=1)
-    third, _ = _layer(seed=6, shape="pen")
+    # Drawn "checker", this seed's pen came out grey on the grey stones, found in 3 of 8 frames
+    # alone: the scenario is of several movers, not of a faint one (benchmarks.detect has those).
+    third, _ = _layer(seed=6, shape="pen", texture_style="mixed")
     slow, _ = _layer(shape="box", seed=5, size_px_range=(60.0, 70.0), speed_range=(0.1, 0.15), min_streak=0.0)
     return [first, _crossing_partner(first, "box", range(2, 40)), third], [slow], background
 

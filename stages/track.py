@@ -276,9 +276,10 @@ def follow_box(
     return detection, None if best is None else best[1]
 
 
-MAX_COAST = 3
+MAX_COAST = 5
 """Frames a track goes on through without a clean fit of its own: its streak merged into another
-track's blob, or shared out with it (two objects crossing)."""
+track's blob, or shared out with it (two objects crossing). Three objects touching in turn share
+four frames in a row (``benchmarks.multi_object``'s slow-beside scenario)."""
 
 COLOUR_MEMORY = 0.7
 """A track's colour is this much its past frames' and the rest its newest blob's: one frame whose
@@ -508,7 +509,9 @@ def track_and_fit(
                     followed = rest
                 elif (claim := _shared(found, followed, objects, tracker, config)) is None:
                     crossing, followed = followed, rest
-                    if followed is None:
+                    # A track of one frame, its direction unknown, ends here: coasting, it went
+                    # on through other tracks' blobs (a slow box's shred took the pen's blob).
+                    if followed is None and tracker.length >= 2:
                         tracker.coast()
                         merged.append((tracker, crossing[0][0]))
                         continue

@@ -85,6 +85,39 @@ def test_two_movers_on_one_path_keep_their_identities(tmp_path: Path, scale: flo
     assert sorted(owner.values(), key=min) == [{0}, {1}], owner  # each track one object, all along
 
 
+def test_three_movers_touching_in_turn_keep_their_tracks(tmp_path: Path) -> None:
+    # The first object's streak touches the second's in frames 3-4 and the pen's in 5-6: four
+    # shared frames in a row, which a track coasting at most three ended in (its last frame then
+    # a track of one, dropped). And the slow box's one-frame track, its direction unknown, went
+    # on through the others' blobs and took the pen's in frame 3.
+    clip, count = multi_object.scenario_clip("three, a slow one beside")
+    truths = _truths(clip, count)
+    config = _config()
+    video = multi_object.write_video(clip, tmp_path / "clip.mp4")
+    (tmp_path / "run").mkdir()
+    frames = with_backgrounds(video, config.video, clip.frames.shape[0])
+    statuses = track_and_fit(frames, tmp_path / "run", clip.camera, config, CPU)
+    # A track's box is its nearest object's when centred within 20 px of it (shared-out parts
+    # are small, so box overlap would miss them), but not where two objects are centred within 10
+    # px of each other (frame 4: there the first and second are one over the other).
+    found: dict[int, dict[int, set[int]]] = {}  # object -> track -> frames
+    for s in statuses:
+        if s.status == "fitted":
+            x, y, w, h = s.box
+            centres = np.array([(bx + bw / 2, by + bh / 2) for bx, by, bw, bh in (t[s.index] for t in truths)])
+            miss = np.hypot(*(centres - (x + w / 2, y + h / 2)).T)
+            k = int(np.argmin(miss))
+            if miss[k] < 20 and np.partition(np.hypot(*(centres - centres[k]).T), 1)[1] >= 10:
+                found.setdefault(k, {}).setdefault(s.track, set()).add(s.index)
+    main = [max(found[k], key=lambda t: len(found[k][t])) for k in range(count)]
+    assert len(set(main)) == 3, found  # each object its own track
+    # The first two found by their own tracks in every frame where they are apart; the pen is
+    # inside the second's blob in frames 0-1 (no track of its own yet) and merges in frame 5.
+    assert found[0] == {main[0]: {0, 1, 2, 3, 5, 6, 7}}, found
+    assert found[1] == {main[1]: {0, 1, 2, 3, 5, 6, 7}}, found
+    assert len(found[2][main[2]]) >= 5, found
+
+
 @dataclasses.dataclass(frozen=True)
 class Run:
     clip: SeveralClip
