@@ -129,9 +129,7 @@ def score_frames(
         # The truth as the first frame sees it, drawn on its canvas.
         move, size = canvas.shift @ moves[0], (canvas.width, canvas.height)
         truth = [[_moved_box(b, move, size) for b in boxes] for boxes in truth]
-    stream = running_median(
-        registered(frames, motion), config.video.background_window, config.video.background_tolerance
-    )
+    stream = running_median(registered(frames, motion), config.video.background_window)
     present = found = detections = 0
     ious = []
     for frame, mask, neighbours in with_neighbours(stream, config):

@@ -327,12 +327,6 @@ class VideoConfig(_Checked):
     """K, the frames in the running median (paper: 5)."""
     global_samples: int = bounded(25, ge=1)
     """Frames in the global median."""
-    background_tolerance: float = bounded(0.0, ge=0, le=1)
-    """At a clip's start (a running median's first ``background_window`` frames), where no other
-    frame backs the median's value, the background is the value most frames agree on (every
-    channel within this much; 0, the default: the plain median). 0.05 suits objects following
-    one path (they cover it in most of those frames, each in another colour), but there it also
-    shows a slow mover whole that the median held in part (benchmarks/RESULTS.md)."""
     exposure_fraction: float = bounded(1.0, gt=0, le=1)
     """Share of the frame interval the shutter is open. The motion is continued across the gap
     (1 / fraction - 1 exposures long) to predict the next frame's start."""

@@ -4,11 +4,6 @@ Three sources, as the paper and users need them:
 - ``running``: the per-pixel median of the K frames before this one (paper: K = 5). The first
   K frames have no K predecessors; they take the median of the other frames among the first
   K + 1, so the clip's start gets a background too. Only K + 1 frames are held in memory.
-  There (and at a new reference's start, when a pan carries fewer than K frames over), where
-  no other frame backs the median's value, the value most of those frames agree on is taken
-  instead (``video.background_tolerance``): the clip's first movers pass through all of them,
-  and two objects following one path cover it in most, each in another colour, while the
-  frames that show the scene agree.
 - ``global``: the median of frames spread evenly over the whole clip (a first pass reads them);
   for a camera that never moves and objects that never rest.
 - a user-supplied image.
@@ -37,13 +32,9 @@ MEDIAN_BAND_VALUES = 1 << 22
 stacked frames, so that a 4K clip's stack is never whole in memory."""
 
 
-def _median(
-    images: list[torch.Tensor], covers: list[torch.Tensor | None] | None = None, tolerance: float = 0.0
-) -> torch.Tensor:
-    """(3, H, W) per-pixel background of (3, H, W) frames, in their dtype: the median (torch
-    takes the lower middle value of an even count, so a uint8 median is exactly the float one,
-    scaled); with a ``tolerance``, where no other frame backs the median's value, the value
-    most frames agree on (:func:`_consensus`).
+def _median(images: list[torch.Tensor], covers: list[torch.Tensor | None] | None = None) -> torch.Tensor:
+    """(3, H, W) per-pixel median of (3, H, W) frames, in their dtype (torch takes the lower
+    middle value of an even count, so a uint8 median is exactly the float one, scaled).
 
     ``covers``: per frame the (H, W) bool pixels it saw (a registered frame's), or None for all;
     a pixel's median is then of the frames that saw it (of all, where none did).
@@ -55,7 +46,6 @@ def _median(
     for top in range(0, first.shape[1], rows):
         band = torch.stack([image[:, top : top + rows] for image in images])
         plain = band.median(dim=0).values
-        seen = None
         if masked:
             assert covers is not None
             seen = torch.stack(
@@ -64,46 +54,7 @@ def _median(
             values = band.float().masked_fill(~seen[:, None], float("nan")).nanmedian(dim=0).values
             filled = torch.where(values.isnan(), plain.float(), values)
             plain = filled.round().to(first.dtype) if first.dtype == torch.uint8 else filled.to(first.dtype)
-        if tolerance > 0 and len(images) > 2:
-            plain = _consensus(band, plain, seen, tolerance * (255 if first.dtype == torch.uint8 else 1))
         out[:, top : top + rows] = plain
-    return out
-
-
-def _consensus(band: torch.Tensor, median: torch.Tensor, seen: torch.Tensor | None, tolerance: float) -> torch.Tensor:
-    """(3, h, w) the ``median`` (3, h, w) of ``band``'s (K, 3, h, w) values, but where no other
-    value agrees with it (every channel within ``tolerance``): there, the mean of the largest
-    set of values that agree with one of them, when it has two or more and no value outside it
-    has as many agreeing. Only frames ``seen`` (K, h, w) count.
-
-    Where most frames show the background the median is the background. Where moving objects
-    cover most of them (two objects following one path) the median is one of theirs, but
-    objects passing differ from one another, while the frames that show the background agree.
-    Only pixels whose values spread beyond the tolerance are worked on (few: the movers' paths).
-    """
-    values = band.float()
-    disputed = (values.amax(0) - values.amin(0)).amax(0) > tolerance
-    if not bool(disputed.any()):
-        return median
-    v = values[:, :, disputed]  # (K, 3, n)
-    frames = v.shape[0]
-    counted = torch.ones_like(v[:, 0], dtype=torch.bool) if seen is None else seen[:, disputed]  # (K, n)
-    agree = torch.stack([(v - v[i]).abs().amax(1) <= tolerance for i in range(frames)])  # (K, K, n)
-    agree &= counted[:, None] & counted[None]
-    count = agree.sum(1)  # (K, n)
-    near = (v - median[:, disputed].float()[None]).abs().amax(1)  # (K, n)
-    backed = ((near <= tolerance) & counted).sum(0)  # the frames that agree with the median
-    pick = torch.where(count == count.amax(0), near, torch.inf).argmin(0)  # (n,)
-    members = agree.permute(2, 0, 1)[torch.arange(pick.numel(), device=pick.device), pick].T  # (K, n)
-    total = members.sum(0)
-    # The median stays wherever another frame backs it (a slow mover covering a pixel in most
-    # frames shows much the same there: taking it for the scene keeps it out of the difference,
-    # as the median always did), and where the largest set only ties with another.
-    rival = torch.where(members, 0, count).amax(0)
-    value = (v * members[:, None]).sum(0) / total.clamp(min=1)
-    out = median.clone()
-    chosen = torch.where((total > rival) & (total >= 2) & (backed <= 1), value, median[:, disputed].float())
-    out[:, disputed] = chosen.round().to(out.dtype) if out.dtype == torch.uint8 else chosen.to(out.dtype)
     return out
 
 
@@ -136,9 +87,8 @@ def _paired(frame: Frame, background: torch.Tensor, seen: torch.Tensor | None = 
     return FrameWithBackground(frame.index, pixels, background, frame.registered, known)
 
 
-def running_median(frames: Iterable[Frame], window: int, tolerance: float = 0.0) -> Iterator[FrameWithBackground]:
-    """Pair each frame with the median of the ``window`` frames before it (see module docstring;
-    at the clip's start, with a ``tolerance``, the value most frames agree on: :func:`_consensus`).
+def running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBackground]:
+    """Pair each frame with the median of the ``window`` frames before it (see module docstring).
 
     A moving camera's frames are taken a reference (a segment) at a time: a new reference's
     frames start a background of their own, and a frame that did not register is no part of
@@ -153,7 +103,7 @@ def running_median(frames: Iterable[Frame], window: int, tolerance: float = 0.0)
     carried: list[Frame] = []
     for _, group in groupby(chain(head, stream), key=segment_of):
         last: deque[Frame] = deque(maxlen=window)
-        yield from _running_median(_kept(group, last), window, carried, tolerance)
+        yield from _running_median(_kept(group, last), window, carried)
         # A camera that pans on to a new reference: its first frames' background starts from
         # the last frames before it, drawn there, not from a few frames of its own (in which a
         # slow object leaves a ghost).
@@ -168,9 +118,7 @@ def _kept(frames: Iterable[Frame], last: deque[Frame]) -> Iterator[Frame]:
         yield frame
 
 
-def _running_median(
-    frames: Iterable[Frame], window: int, carried: list[Frame], tolerance: float
-) -> Iterator[FrameWithBackground]:
+def _running_median(frames: Iterable[Frame], window: int, carried: list[Frame]) -> Iterator[FrameWithBackground]:
     stream = iter(frames)
     if len(carried) < window:
         head = list(islice(stream, window + 1))
@@ -178,9 +126,7 @@ def _running_median(
         for frame in head[:window]:
             others = [f for f in seen if f is not frame]
             # A reference seen by one frame only has nothing to compare with: no difference.
-            background = (
-                _median([f.image for f in others], [_cover(f) for f in others], tolerance) if others else frame.image
-            )
+            background = _median([f.image for f in others], [_cover(f) for f in others]) if others else frame.image
             yield _paired(frame, background, _seen(others))
         previous = deque(carried + [f for f in head[:window] if usable(f)], maxlen=window)
     else:
@@ -267,13 +213,9 @@ def with_backgrounds(
         return timed_iter("background", fixed_background(stream, *onto_canvas(read_image(background), motion)))
     if config.background == "running":
         if frames is None:
-            return timed_iter(
-                "background", running_median(stream, config.background_window, config.background_tolerance)
-            )
+            return timed_iter("background", running_median(stream, config.background_window))
         wide = registered(read_frames(path, frames_read(frames, config)), motion)
-        ranged = (
-            f for f in running_median(wide, config.background_window, config.background_tolerance) if f.index in frames
-        )
+        ranged = (f for f in running_median(wide, config.background_window) if f.index in frames)
         return timed_iter("background", ranged)
     if config.background == "global":
         if motion is not None and motion.references > 1:

@@ -88,7 +88,7 @@ def test_a_large_faint_disc_is_detected_whole_in_every_frame() -> None:
     pixels, boxes = aerobie_clip(8)
     config = load_config("fast")
     frames = (Frame(k, torch.from_numpy(np.ascontiguousarray(f.transpose(2, 0, 1)))) for k, f in enumerate(pixels))
-    backgrounds = running_median(frames, config.video.background_window, config.video.background_tolerance)
+    backgrounds = running_median(frames, config.video.background_window)
     for frame, mask, neighbours in with_neighbours(backgrounds, config):
         found = choose_blob(frame.index, moving_mask(mask, neighbours, config.detect), None, config.detect)
         # The true box holds every pixel 0.02 away from the background; measured IoU 0.73-0.82.
