@@ -221,7 +221,8 @@ def _choosing_order(
     """The order in which tracks choose their blobs (indices into ``wants``: each track and the
     blob it would take, :func:`follow`): longer tracks first, their predictions being the
     surest, but of tracks that would take the same blob, the one whose prediction lands nearest
-    it (in its object's diameters) first, at the place of the longest of them.
+    it (in its object's diameters) first, at the place of the longest of them; the others of
+    them keep their own places.
 
     Two objects following one path: the lead's streak came out a shred, and the lead's track,
     the longer by a frame, took the trailing object's blob, which its size outweighed the shred
@@ -238,9 +239,16 @@ def _choosing_order(
     # A track that would take no blob is a group of its own.
     group = [(-1 - k) if w[1] is None else w[1][0][0] for k, w in enumerate(wants)]
     longest: dict[int, int] = {}
+    nearest: dict[int, int] = {}
     for k, (tracker, _) in enumerate(wants):
         longest[group[k]] = max(longest.get(group[k], 0), tracker.length)
-    return sorted(range(len(wants)), key=lambda k: (-longest[group[k]], miss(k), -wants[k][0].length, k))
+        if group[k] not in nearest or miss(k) < miss(nearest[group[k]]):
+            nearest[group[k]] = k
+
+    def place(k: int) -> int:
+        return longest[group[k]] if nearest[group[k]] == k else wants[k][0].length
+
+    return sorted(range(len(wants)), key=lambda k: (-place(k), miss(k), -wants[k][0].length, k))
 
 
 def follow_box(
@@ -279,7 +287,8 @@ def follow_box(
 MAX_COAST = 5
 """Frames a track goes on through without a clean fit of its own: its streak merged into another
 track's blob, or shared out with it (two objects crossing). Three objects touching in turn share
-four frames in a row (``benchmarks.multi_object``'s slow-beside scenario)."""
+four frames in a row (``benchmarks.multi_object``'s slow-beside scenario). A track of one frame,
+its direction unknown, does not coast where its blob merged: it ends (it may still share)."""
 
 COLOUR_MEMORY = 0.7
 """A track's colour is this much its past frames' and the rest its newest blob's: one frame whose
@@ -464,8 +473,9 @@ def track_and_fit(
     soon as it is done; fits already saved there are reused.
 
     Every fast mover has its own track (at most ``video.max_objects`` at once; 0: all). In each
-    frame the tracks look for their objects first, longest first, each among the blobs that no
-    other has taken; the blobs left that are objects of their own (:data:`OTHER_SHARE`) start
+    frame the tracks look for their objects first, each among the blobs that no other has
+    taken, in :func:`_choosing_order` (longest first, but the nearest of those that would take
+    one blob before the others); the blobs left that are objects of their own (:data:`OTHER_SHARE`) start
     new tracks, largest first. ``masks`` gives each fit its sub-frame masks (None: the
     difference mask).
 
@@ -603,7 +613,7 @@ def _shared(
     cross), the blob shared out between the two by nearness to their predicted streaks: this
     track's claim, the first's narrowed to its own part. None where it cannot be shared (the
     first has no prediction or already shares, or a part would be too small): then the track
-    coasts through the frame."""
+    takes the best blob left, or coasts through the frame (a track of one frame ends)."""
     (label, _), _, prediction = crossing
     first = next(c for c in claims if c.label == label)
     if first.prediction is None or first.part is not None:
