@@ -61,9 +61,9 @@ def test_two_crossing_movers_keep_their_identities_through_the_crossing(tmp_path
 @pytest.mark.parametrize("scale", [1.0, 1.000001, 0.999999])
 def test_two_movers_on_one_path_keep_their_identities(tmp_path: Path, scale: float) -> None:
     # Two frames apart on one path, the trailing object comes where the lead was: where the lead's
-    # streak came out a shred, its track took the trail's larger blob (the tracks swapped in one
-    # of these three runs, whose fits differ in the last bits). The track whose prediction lands
-    # on a blob chooses it first.
+    # streak came out a shred, its track took the trail's larger blob, and the tracks swapped (in
+    # all three runs, whose fits differ in the last bits). The track whose prediction lands on a
+    # blob chooses it first.
     clip, count = multi_object.scenario_clip("two following")
     truths = _truths(clip, count)
     config = _config(0, f"fit.w_texture={load_config('fast').fit.w_texture * scale}")
