@@ -37,9 +37,9 @@ def demo_clip(config: Config) -> SyntheticClip:
     return generate_clip(spec)
 
 
-def write_clip_video(clip: SyntheticClip, path: Path, fps: float = 30.0) -> None:
-    """Write the clip's blurred frames as an H.264 video."""
-    with VideoWriter(path, fps, clip.spec.width, clip.spec.height) as video:
+def write_clip_video(clip: SyntheticClip, path: Path, fps: float = 30.0, crf: int = 18) -> None:
+    """Write the clip's blurred frames as an H.264 video (``crf`` 0: lossless)."""
+    with VideoWriter(path, fps, clip.spec.width, clip.spec.height, crf) as video:
         for frame in clip.frames:
             video.write(frame)
 

@@ -229,26 +229,20 @@ def _choosing_order(
     by, though the trail's own prediction lay on it; the tracks swapped objects there.
     """
 
-    def miss(k: int) -> float:
-        followed = wants[k][1]
-        if followed is None:
-            return math.inf
-        (label, _), _, prediction = followed
-        return _miss(found, label, prediction) / max(prediction.diameter, 1.0)
-
+    miss = [math.inf if w is None else _miss(found, w[0][0], w[2]) / max(w[2].diameter, 1.0) for _, w in wants]
     # A track that would take no blob is a group of its own.
-    group = [(-1 - k) if w[1] is None else w[1][0][0] for k, w in enumerate(wants)]
+    group = [(-1 - k) if w is None else w[0][0] for k, (_, w) in enumerate(wants)]
     longest: dict[int, int] = {}
     nearest: dict[int, int] = {}
     for k, (tracker, _) in enumerate(wants):
         longest[group[k]] = max(longest.get(group[k], 0), tracker.length)
-        if group[k] not in nearest or miss(k) < miss(nearest[group[k]]):
+        if group[k] not in nearest or miss[k] < miss[nearest[group[k]]]:
             nearest[group[k]] = k
 
     def place(k: int) -> int:
         return longest[group[k]] if nearest[group[k]] == k else wants[k][0].length
 
-    return sorted(range(len(wants)), key=lambda k: (-place(k), miss(k), -wants[k][0].length, k))
+    return sorted(range(len(wants)), key=lambda k: (-place(k), miss[k], -wants[k][0].length, k))
 
 
 def follow_box(

@@ -15,11 +15,12 @@ import torch
 import sfb_video.stages.track
 from benchmarks import multi_object
 from sfb_video.config import Config, load_config
+from sfb_video.crop import Box
 from sfb_video.evaluation.objects import Coverage, box_iou, cover_objects, spurious_tracks
 from sfb_video.stages.background import running_median, with_backgrounds
 from sfb_video.stages.process import ProcessOptions, process_clip
 from sfb_video.stages.track import track_and_fit
-from sfb_video.stages.types import Frame
+from sfb_video.stages.types import Frame, FrameStatus
 from sfb_video.synth.several import SeveralClip
 
 CPU = torch.device("cpu")
@@ -58,19 +59,24 @@ def test_two_crossing_movers_keep_their_identities_through_the_crossing(tmp_path
     assert all(abs(index - middle) <= 2 for index, _ in touched), touched
 
 
+def _tracked(name: str, config: Config, root: Path) -> tuple[SeveralClip, list[dict[int, Box]], list[FrameStatus]]:
+    """Scenario ``name``'s clip, its objects' true boxes and the statuses of tracking and fitting
+    it, read back from its H.264 file as the benchmark sees it."""
+    clip, count = multi_object.scenario_clip(name)
+    video = multi_object.write_video(clip, root / "clip.mp4")
+    (root / "run").mkdir()
+    frames = with_backgrounds(video, config.video, clip.frames.shape[0])
+    return clip, _truths(clip, count), track_and_fit(frames, root / "run", clip.camera, config, CPU)
+
+
 @pytest.mark.parametrize("scale", [1.0, 1.000001, 0.999999])
 def test_two_movers_on_one_path_keep_their_identities(tmp_path: Path, scale: float) -> None:
     # Two frames apart on one path, the trailing object comes where the lead was: where the lead's
     # streak came out a shred, its track took the trail's larger blob, and the tracks swapped (in
     # all three runs, whose fits differ in the last bits). The track whose prediction lands on a
     # blob chooses it first.
-    clip, count = multi_object.scenario_clip("two following")
-    truths = _truths(clip, count)
     config = _config(0, f"fit.w_texture={load_config('fast').fit.w_texture * scale}")
-    video = multi_object.write_video(clip, tmp_path / "clip.mp4")  # as the benchmark sees it
-    frames = with_backgrounds(video, config.video, clip.frames.shape[0])
-    (tmp_path / "run").mkdir()
-    statuses = track_and_fit(frames, tmp_path / "run", clip.camera, config, CPU)
+    clip, truths, statuses = _tracked("two following", config, tmp_path)
     owner: dict[int, set[int]] = {}
     for s in statuses:
         if s.status == "fitted":
@@ -90,13 +96,7 @@ def test_three_movers_touching_in_turn_keep_their_tracks(tmp_path: Path) -> None
     # shared frames in a row, which a track coasting at most three ended in (its last frame then
     # a track of one, dropped). And the slow box's one-frame track, its direction unknown, went
     # on through the others' blobs and took the pen's in frame 3.
-    clip, count = multi_object.scenario_clip("three, a slow one beside")
-    truths = _truths(clip, count)
-    config = _config()
-    video = multi_object.write_video(clip, tmp_path / "clip.mp4")
-    (tmp_path / "run").mkdir()
-    frames = with_backgrounds(video, config.video, clip.frames.shape[0])
-    statuses = track_and_fit(frames, tmp_path / "run", clip.camera, config, CPU)
+    _, truths, statuses = _tracked("three, a slow one beside", _config(), tmp_path)
     # A track's box is its nearest object's when centred within 20 px of it (shared-out parts
     # are small, so box overlap would miss them), but not where two objects are centred within 10
     # px of each other (frame 4: there the first and second are one over the other).
@@ -109,7 +109,7 @@ def test_three_movers_touching_in_turn_keep_their_tracks(tmp_path: Path) -> None
             k = int(np.argmin(miss))
             if miss[k] < 20 and np.partition(np.hypot(*(centres - centres[k]).T), 1)[1] >= 10:
                 found.setdefault(k, {}).setdefault(s.track, set()).add(s.index)
-    main = [max(found[k], key=lambda t: len(found[k][t])) for k in range(count)]
+    main = [max(found[k], key=lambda t: len(found[k][t])) for k in range(len(truths))]
     assert len(set(main)) == 3, found  # each object its own track
     # The first two found by their own tracks in every frame where they are apart; the pen is
     # inside the second's blob in frames 0-1 (no track of its own yet) and merges in frame 5.

@@ -16,11 +16,10 @@ import pytest
 import torch
 
 from sfb_video.config import Config, load_config
-from sfb_video.demo import demo_clip, demo_config, score_run
+from sfb_video.demo import demo_clip, demo_config, score_run, write_clip_video
 from sfb_video.stages.process import ProcessOptions, process_clip
 from sfb_video.synth import SyntheticClip
 from sfb_video.synth.shake import from_first, shake_frames, shake_transforms
-from sfb_video.video import VideoWriter
 
 CPU = torch.device("cpu")
 
@@ -39,9 +38,7 @@ def _process(clip: SyntheticClip, frames: np.ndarray, config: Config, root: Path
     video, out = root / f"{name}.mp4", root / name
     # Lossless: x264's bits differed between runs in one process now and then (a clip written
     # first, or after other tests), and this one clip's fits by up to 0.06 TIoU with them.
-    with VideoWriter(video, 30.0, clip.spec.width, clip.spec.height, crf=0) as writer:
-        for frame in frames:
-            writer.write(frame)
+    write_clip_video(dataclasses.replace(clip, frames=frames), video, crf=0)
     process_clip(ProcessOptions(video=video, out=out), config, CPU, quiet=True)
     return out
 
