@@ -265,6 +265,46 @@ def blob_colour(image: np.ndarray, background: np.ndarray, where: np.ndarray) ->
     return r, g, b
 
 
+SHRED_RATIO = 1.25
+"""A blob whose changed regions (slow movers' pixels kept) hold more than this times its own
+area is a shred of a larger mover. circle_fast.avi: the arm's fast fringes 1.4 to 37, the
+ball's streaks clear of the arm 1.00 to 1.10 (up to 5.6 where they pass the arm), the falling
+objects of falling_two and falling_three 1.00 to 1.17 until they reach the floor."""
+
+SHADE_CHROMA = 0.06
+"""The most a shade's chromaticity differs from its background's (:func:`is_shade`)."""
+
+SHADE_CONTRAST = 0.14
+"""A shade: a blob whose strongest quarter's chromaticity differs from the background's by at
+most :data:`SHADE_CHROMA` (L1) and whose mean difference there (||I - B|| over RGB in [0, 1])
+is under :data:`SHADE_CONTRAST`. circle_fast.avi's moving shadows: chromaticity 0.01 to 0.06,
+difference 0.10 to 0.13; its ball 0.07 to 0.29 in chromaticity; the dark objects of
+falling_two and falling_three, as grey as a shadow, differ by 0.15 to 0.50 where they start."""
+
+
+SHADE_PENALTY = 4.0
+"""A shade weighs this many times less as a tracked object than another blob (:func:`pick_blob`):
+a falling grey object's faint streaks are shades too, and still taken where nothing else is."""
+
+
+def is_shade(image: np.ndarray, background: np.ndarray, where: np.ndarray) -> bool:
+    """Whether a blob is a faint change of brightness alone (:data:`SHADE_CONTRAST`), as a
+    shadow or a flicker of the light makes: no object's own colour shows in it.
+
+    Args:
+        image, background: (3, H, W) the frame and its background, uint8 or float in [0, 1].
+        where: (H, W) bool, the blob.
+    """
+    scale = 255.0 if image.dtype == np.uint8 else 1.0
+    pixels = image[:, where].astype(np.float32) / scale
+    behind = background[:, where].astype(np.float32) / scale
+    change = np.linalg.norm(pixels - behind, axis=0)
+    strongest = change >= np.quantile(change, 0.75)
+    own, other = pixels[:, strongest].mean(1), behind[:, strongest].mean(1)
+    chroma = float(np.abs(own / max(float(own.sum()), 1e-6) - other / max(float(other.sum()), 1e-6)).sum())
+    return chroma <= SHADE_CHROMA and float(change[strongest].mean()) < SHADE_CONTRAST
+
+
 @timed("detect")
 def gate_distance(
     prediction: Prediction, centre: tuple[float, float], size: tuple[int, int], area: float, config: DetectConfig
@@ -289,6 +329,8 @@ class FrameBlobs:
     Attributes:
         count, labels, stats, centroids: as :func:`blobs` returns them.
         pixels: the frame's (3, H, W) pixels and background as arrays, for the blobs' colours.
+        changed: the frame's (H, W) bool difference mask (:func:`difference_mask`), slow movers
+            not taken out, for :meth:`own_object`.
     """
 
     count: int
@@ -296,9 +338,37 @@ class FrameBlobs:
     stats: np.ndarray
     centroids: np.ndarray
     pixels: tuple[np.ndarray, np.ndarray] | None = None
+    changed: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self._colours: dict[int, tuple[float, float, float]] = {}
+        self._changed_areas: tuple[np.ndarray, np.ndarray] | None = None
+        self._shades: dict[int, bool] = {}
+
+    def own_object(self, label: int) -> bool:
+        """Whether blob ``label`` may be an object of its own beside another tracked one: not a
+        shred of a larger mover (the changed regions it lies in, slow movers' pixels
+        included, hold at most :data:`SHRED_RATIO` times its area: an arm whose fringe moved
+        fast) and not a shade (a faint change of brightness alone: the shadow a ball casts on
+        the wall). Without the frame's ``changed`` mask and pixels, every blob may be one."""
+        if self.changed is None or self.pixels is None:
+            return True
+        if self._changed_areas is None:
+            _, regions = cv2.connectedComponents(self.changed.astype(np.uint8), connectivity=8)
+            self._changed_areas = regions, np.bincount(regions.ravel())
+        regions, areas = self._changed_areas
+        touched = np.unique(regions[self.labels == label])
+        if float(areas[touched[touched > 0]].sum()) > SHRED_RATIO * self.area(label):
+            return False
+        return not self.shade(label)
+
+    def shade(self, label: int) -> bool:
+        """Whether blob ``label`` is a shade (:func:`is_shade`); False without the frame."""
+        if self.pixels is None:
+            return False
+        if label not in self._shades:
+            self._shades[label] = is_shade(*self.pixels, self.labels == label)
+        return self._shades[label]
 
     def colour(self, label: int) -> tuple[float, float, float] | None:
         """The chromaticity of blob ``label`` (:func:`blob_colour`), None without the frame."""
@@ -349,13 +419,18 @@ class FrameBlobs:
 
 
 def frame_blobs(
-    moving: torch.Tensor, config: DetectConfig, frame: tuple[torch.Tensor, torch.Tensor] | None = None
+    moving: torch.Tensor,
+    config: DetectConfig,
+    frame: tuple[torch.Tensor, torch.Tensor] | None = None,
+    changed: torch.Tensor | None = None,
 ) -> FrameBlobs:
     """The blobs of a frame's ``moving`` mask (:func:`moving_mask`), with the frame's pixels and
-    background (3, H, W) each when given, for their colours."""
+    background (3, H, W) each when given, for their colours, and its ``changed`` (H, W)
+    difference mask, for :meth:`FrameBlobs.own_object`."""
     count, labels, stats, centroids = blobs(moving.cpu().numpy().astype(bool), config.merge_px, config.min_area_px)
     pixels = None if frame is None else (frame[0].cpu().numpy(), frame[1].cpu().numpy())
-    return FrameBlobs(count, labels, stats, centroids, pixels)
+    whole = None if changed is None else changed.cpu().numpy().astype(bool)
+    return FrameBlobs(count, labels, stats, centroids, pixels, whole)
 
 
 def pick_blob(
@@ -391,6 +466,10 @@ def pick_blob(
                 # A shred of an arm or a shadow of the wall near a poor prediction is another
                 # colour than the track's object.
                 score /= 1 + (math.dist(colour, prediction.colour) / config.colour_scale) ** 2
+            if found.shade(label):
+                # circle_fast.avi: the ball's shadow on the wall lay nearer a poor prediction
+                # than the ball, and as near the track's colour, which the arm had tinted.
+                score /= SHADE_PENALTY
         candidates.append(label)
         if best is None or score > best[0]:
             best = (score, label)

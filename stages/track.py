@@ -221,12 +221,15 @@ def _choosing_order(
     """The order in which tracks choose their blobs (indices into ``wants``: each track and the
     blob it would take, :func:`follow`): longer tracks first, their predictions being the
     surest, but of tracks that would take the same blob, the one whose prediction lands nearest
-    it (in its object's diameters) first, at the place of the longest of them; the others of
-    them keep their own places.
+    it (in its object's diameters) first, at the place of the longest of them, unless it is a
+    track of one frame beside longer ones; the others of them keep their own places.
 
     Two objects following one path: the lead's streak came out a shred, and the lead's track,
     the longer by a frame, took the trailing object's blob, which its size outweighed the shred
-    by, though the trail's own prediction lay on it; the tracks swapped objects there.
+    by, though the trail's own prediction lay on it; the tracks swapped objects there. A track of
+    one frame, though, only guesses which way it goes: falling_pen.avi's pen streak came in two
+    pieces, the second started a track, and its guess, nearer the next frame's blob, took it
+    from the pen's.
     """
 
     miss = [math.inf if w is None else _miss(found, w[0][0], w[2]) / max(w[2].diameter, 1.0) for _, w in wants]
@@ -234,9 +237,14 @@ def _choosing_order(
     group = [(-1 - k) if w is None else w[0][0] for k, (_, w) in enumerate(wants)]
     longest: dict[int, int] = {}
     nearest: dict[int, int] = {}
+
+    def surer(k: int, than: int) -> bool:
+        # A track of one frame guesses its direction: it comes after longer ones.
+        return (wants[k][0].length < 2, miss[k]) < (wants[than][0].length < 2, miss[than])
+
     for k, (tracker, _) in enumerate(wants):
         longest[group[k]] = max(longest.get(group[k], 0), tracker.length)
-        if group[k] not in nearest or miss[k] < miss[nearest[group[k]]]:
+        if group[k] not in nearest or surer(k, nearest[group[k]]):
             nearest[group[k]] = k
 
     def place(k: int) -> int:
@@ -446,12 +454,18 @@ OTHER_SHARE = 0.1
 largest blob: another fast mover, not a speck of noise or a shred of a slow one."""
 
 
-def _new_objects(found: FrameBlobs, taken: set[int], config: Config) -> list[int]:
-    """The labels of the blobs no track took that are objects of their own, largest first."""
+def _new_objects(found: FrameBlobs, taken: set[int], config: Config, alone: bool) -> list[int]:
+    """The labels of the blobs no track took that are objects of their own, largest first.
+
+    Beside another track (all but the largest blob when no track is ``alone``, every one
+    otherwise), a blob must also be an object of its own by :meth:`FrameBlobs.own_object`:
+    with every mover tracked, circle_fast.avi's arm and the ball's shadow on the wall started
+    twelve tracks beside the ball's, which took the ball's blob from it in turn."""
     areas = [found.area(k) for k in range(1, found.count)]
     floor = max(config.detect.min_area_px, OTHER_SHARE * max(areas, default=0.0))
     fresh = [k for k in range(1, found.count) if k not in taken and found.area(k) >= floor]
-    return sorted(fresh, key=lambda k: (-found.area(k), k))
+    fresh.sort(key=lambda k: (-found.area(k), k))
+    return [k for n, k in enumerate(fresh) if (alone and n == 0) or found.own_object(k)]
 
 
 def track_and_fit(
@@ -494,7 +508,7 @@ def track_and_fit(
                 report(statuses[-1], None)
             continue
         moving = moving_mask(mask, neighbours, config.detect)
-        found = frame_blobs(moving, config.detect, (frame.pixels, frame.background_pixels))
+        found = frame_blobs(moving, config.detect, (frame.pixels, frame.background_pixels), mask)
         taken: set[int] = set()
         objects: list[_Claim] = []
         merged: list[tuple[Tracker, int]] = []
@@ -529,7 +543,7 @@ def track_and_fit(
             taken.add(label)
             objects.append(claim or _Claim(tracker, label, others, prediction))
         live = [t for t in live if t.previous is not None]
-        fresh = _new_objects(found, taken, config)
+        fresh = _new_objects(found, taken, config, alone=not live)
         room = max(0, int(min(limit, len(fresh) + len(live)) - len(live)))
         objects += [_Claim(Tracker(camera, config, numbers), label, 0, None) for label in fresh[:room]]
         untracked = len(fresh) - room

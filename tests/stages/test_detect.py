@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from sfb_video.config import load_config
-from sfb_video.stages.detect import Neighbour, blob_colour, choose_blob, detect, difference_mask
+from sfb_video.stages.detect import Neighbour, blob_colour, choose_blob, detect, difference_mask, frame_blobs
 from sfb_video.stages.types import Prediction
 
 CONFIG = load_config("default").detect
@@ -150,3 +150,40 @@ def test_the_weak_level_is_the_noise_of_the_pixels_compared_with_a_background() 
     assert weak_level(difference, CONFIG) == CONFIG.weak_threshold
     noise = float(np.median(difference[:, :64]))
     assert abs(weak_level(difference, CONFIG, known) - CONFIG.weak_noise * noise) < 1e-3
+
+
+def test_a_shred_of_a_larger_mover_or_a_shade_is_no_object_of_its_own() -> None:
+    # On a grey wall: a green ball's streak, the fast fringe of a skin-coloured arm whose
+    # changed region is much larger than the fringe, a shadow (the wall 10% darker) and a dark
+    # grey object (the wall 60% darker, as grey as the shadow but no faint change).
+    background = torch.full((3, 60, 120), 160, dtype=torch.uint8)
+    image = background.clone()
+    ball, arm, fringe = (5, 5, 20, 8), (40, 30, 30, 25), (40, 30, 6, 25)
+    shadow, dark = (80, 5, 20, 10), (80, 40, 20, 10)
+    for (x, y, w, h), rgb in ((ball, (150, 200, 80)), (arm, (210, 150, 120)), (shadow, (144,) * 3), (dark, (64,) * 3)):
+        image[:, y : y + h, x : x + w] = torch.tensor(rgb, dtype=torch.uint8)[:, None, None]
+    moving, changed = _mask(ball, fringe, shadow, dark, size=(60, 120)), _mask(ball, arm, shadow, dark, size=(60, 120))
+    found = frame_blobs(moving, CONFIG, (image, background), changed)
+    own = {tuple(int(v) for v in found.stats[k, :4]): found.own_object(k) for k in range(1, found.count)}
+    assert own == {ball: True, fringe: False, shadow: False, dark: True}
+    # The arm's fringe is its own object where its changed region is no larger than it.
+    alone = frame_blobs(moving, CONFIG, (image, background), moving)
+    own = {tuple(int(v) for v in alone.stats[k, :4]): alone.own_object(k) for k in range(1, alone.count)}
+    assert own == {ball: True, fringe: True, shadow: False, dark: True}
+    assert all(frame_blobs(moving, CONFIG).own_object(k) for k in range(1, found.count))
+
+
+def test_a_tracked_object_is_not_taken_for_a_nearer_shadow_but_a_shade_alone_is_taken() -> None:
+    # circle_fast.avi, frame 50: the ball's shadow on the wall lay nearer a poor prediction than
+    # the ball's streak, and the track's colour, tinted by the arm, did not tell them apart.
+    background = torch.full((3, 60, 120), 160, dtype=torch.uint8)
+    image = background.clone()
+    ball, shadow = (70, 20, 20, 10), (20, 20, 20, 10)
+    for (x, y, w, h), rgb in ((ball, (150, 200, 80)), (shadow, (144,) * 3)):
+        image[:, y : y + h, x : x + w] = torch.tensor(rgb, dtype=torch.uint8)[:, None, None]
+    prediction = Prediction((50.0, 25.0), 20.0)  # 20 px from the shadow's centre, 30 from the ball's
+    mask = _mask(ball, shadow, size=(60, 120))
+    assert choose_blob(0, mask, prediction, CONFIG).box == shadow  # without the frame's pixels
+    assert choose_blob(0, mask, prediction, CONFIG, (image, background)).box == ball
+    alone = choose_blob(0, _mask(shadow, size=(60, 120)), prediction, CONFIG, (image, background))
+    assert alone is not None and alone.box == shadow

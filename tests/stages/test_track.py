@@ -22,8 +22,17 @@ from sfb_video.run_folder import saved_frames
 from sfb_video.stages.background import running_median
 from sfb_video.stages.detect import frame_blobs
 from sfb_video.stages.fit import continued
-from sfb_video.stages.track import Tracker, follow, predict, short_tracks_dropped, track_and_fit, with_neighbours
-from sfb_video.stages.types import Frame, FrameStatus, FrameWithBackground, Registered
+from sfb_video.stages.track import (
+    Tracker,
+    _choosing_order,
+    _new_objects,
+    follow,
+    predict,
+    short_tracks_dropped,
+    track_and_fit,
+    with_neighbours,
+)
+from sfb_video.stages.types import Frame, FrameStatus, FrameWithBackground, Prediction, Registered
 from sfb_video.synth import generate_clip
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
@@ -160,3 +169,50 @@ def test_a_track_goes_on_where_its_streak_moved_on_though_its_fits_lag_on_speed(
     (label, _), _, _ = followed
     x, y = found.centroids[label]
     assert math.hypot(x - own[0], y - own[1]) < 1.5, (x, y, own, other)
+
+
+def test_a_track_of_one_frame_chooses_after_a_longer_one_that_would_take_its_blob() -> None:
+    # falling_pen.avi: the pen's streak came in two pieces; the second started a track, whose
+    # guess at its direction landed nearer the next frame's blob than the pen's track did.
+    config = load_config("fast")
+    moving = np.zeros((40, 60), bool)
+    moving[10:20, 20:40] = True
+    found = frame_blobs(torch.from_numpy(moving), config.detect)
+    pen, piece = Tracker(CAMERA, config), Tracker(CAMERA, config)
+    pen.length, piece.length = 5, 1
+    last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
+    far, near = Prediction((30.0, 30.0), 10.0), Prediction((30.0, 17.0), 10.0)
+    wants = [(piece, ((1, 0), last, near)), (pen, ((1, 0), last, far))]
+    assert _choosing_order(found, wants) == [1, 0]
+    # Of tracks that know their direction, the nearer prediction chooses first, however long:
+    # two objects on one path.
+    piece.length = 2
+    assert _choosing_order(found, wants) == [0, 1]
+
+
+def test_beside_a_tracked_object_only_objects_of_their_own_start_tracks() -> None:
+    # circle_fast.avi with every mover tracked: the arm's fast fringes and the ball's shadow on
+    # the wall started twelve tracks beside the ball's, which took its blob from it in turn.
+    config = load_config("fast")
+    background = torch.full((3, 60, 120), 160, dtype=torch.uint8)
+    image = background.clone()
+    ball, other, arm, fringe, shadow = (5, 5, 20, 8), (5, 40, 20, 8), (40, 30, 30, 25), (40, 30, 6, 25), (80, 5, 20, 10)
+    for (x, y, w, h), rgb in (
+        (ball, (150, 200, 80)),
+        (other, (60, 60, 200)),
+        (arm, (210, 150, 120)),
+        (shadow, (144,) * 3),
+    ):
+        image[:, y : y + h, x : x + w] = torch.tensor(rgb, dtype=torch.uint8)[:, None, None]
+    moving, changed = np.zeros((60, 120), bool), np.zeros((60, 120), bool)
+    for (x, y, w, h), where in ((ball, (moving, changed)), (other, (moving, changed)), (arm, (changed,))):
+        for m in where:
+            m[y : y + h, x : x + w] = True
+    for x, y, w, h in (fringe, shadow):
+        moving[y : y + h, x : x + w] = changed[y : y + h, x : x + w] = True
+    found = frame_blobs(torch.from_numpy(moving), config.detect, (image, background), torch.from_numpy(changed))
+    box = {k: tuple(int(v) for v in found.stats[k, :4]) for k in range(1, found.count)}
+    label = {b: k for k, b in box.items()}
+    # No track yet: the largest blob starts one whatever it is, as with one object tracked.
+    assert [box[k] for k in _new_objects(found, set(), config, alone=True)] == [shadow, ball, other]
+    assert [box[k] for k in _new_objects(found, {label[ball]}, config, alone=False)] == [other]
