@@ -110,7 +110,7 @@ def clip_arguments() -> argparse.ArgumentParser:
     clip.add_argument(
         "--max-objects",
         type=at_least(0),
-        help="track at most N objects at once, 0: every fast mover (default: video.max_objects, 1)",
+        help="track at most N objects at once, 0: every fast mover (default: video.max_objects, 0)",
     )
     return clip
 

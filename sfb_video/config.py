@@ -334,10 +334,11 @@ class VideoConfig(_Checked):
     """Sub-frames rendered per blurred frame in ``tsr.mp4``."""
     warm_start: bool = True
     """Start each frame of a track from the previous frame's result (off: every frame cold)."""
-    max_objects: int = bounded(1, ge=0)
+    max_objects: int = bounded(0, ge=0)
     """Objects tracked at once: every fast mover has its own track, up to this many (0: all);
-    1 (the default until several objects are measured, benchmarks/RESULTS.md) follows one
-    object, the others left in a frame's note."""
+    1 follows one object, the others left in a frame's note. Beside a tracked object, a blob
+    starts a track only when it is an object of its own, not a shred of a slow mover or a
+    shadow (:meth:`~sfb_video.stages.detect.FrameBlobs.own_object`)."""
     min_track_frames: int = bounded(3, ge=1)
     """A track fitted in fewer frames than this is not an object (a flicker, a shred of an arm)
     and is left out of the outputs, unless no track of the clip is longer."""

@@ -1,7 +1,7 @@
 """The pipeline end to end on the real clips in ../shared/data/clips (fast preset).
 
 These clips have no ground truth; the tests check that every clip runs through, that the object
-found in circle_fast.avi is the swung ball and not the moving arm beside it, and that the fits
+found in circle_fast.avi is the swung ball and not the moving arm beside it or its shadow, and that the fits
 explain the frames they were made for.
 """
 
@@ -49,36 +49,41 @@ def test_pipeline_runs_end_to_end(name: str, tmp_path: Path) -> None:
 
 
 def test_circle_fast_finds_the_ball_not_the_arm(tmp_path: Path) -> None:
+    # Every fast mover is tracked (the default): the arm's fast fringes and the ball's shadow on
+    # the wall start no track beside the ball's.
     summary = _run("circle_fast", tmp_path)
-    frames = {f["index"]: f for f in summary["frames"]}
     assert summary["frames_read"] == 96
-    # The ball flies through the whole clip (measured: all 96 frames fitted).
-    assert summary["frames_fitted"] >= 90
+    fitted = [f for f in summary["frames"] if f["status"] == "fitted"]
+    lengths = {t["track"]: len(t["frames"]) for t in summary["tracks"]}
+    # The ball flies through the whole clip. Measured: one track, all 96 frames; before the arm's
+    # fringes and the shadow were told from objects, 27 tracks (the ball's cut into 13 of them).
+    assert max(lengths.values()) >= 90 and len(lengths) <= 2, lengths
     config = load_config("fast")
     arm_like = []
+    records = {}
+    for f in fitted:
+        records.setdefault(f["index"], []).append(f)
     for frame in with_backgrounds(CLIPS / "circle_fast.avi", config.video, 96):
-        record = frames[frame.index]
-        if record["status"] != "fitted":
-            continue
-        x, y, w, h = record["box"]
-        image, background = frame.image[:, y : y + h, x : x + w], frame.background[:, y : y + h, x : x + w]
-        changed = (image - background).norm(dim=0) > config.detect.threshold
-        # The ball is yellow-green, the arm skin: where the box differs from the background,
-        # green exceeds red for the ball and falls below it for the arm.
-        if float(image[1][changed].mean() - image[0][changed].mean()) <= 0:
-            arm_like.append(frame.index)
-    # Measured: 5 of 96 (49, 50, 60, 73, 83). In 49, 60, 73 and 83 the blob is the ball's streak
-    # (its own pixels green: g - r 0.00 to +0.04) passing the fist, which lies inside its box; in
-    # 50 a shadow on the wall lay nearer a poor prediction. Was 6 (and 39, a shred of the arm)
-    # before blobs were scored by the track's colour, 9 with a prediction that went straight on.
-    assert len(arm_like) <= 6
-    fitted = [f for f in frames.values() if f["status"] == "fitted"]
+        for record in records.get(frame.index, []):
+            x, y, w, h = record["box"]
+            image, background = frame.image[:, y : y + h, x : x + w], frame.background[:, y : y + h, x : x + w]
+            changed = (image - background).norm(dim=0) > config.detect.threshold
+            # The ball is yellow-green, the arm skin: where the box differs from the background,
+            # green exceeds red for the ball and falls below it for the arm.
+            if float(image[1][changed].mean() - image[0][changed].mean()) <= 0:
+                arm_like.append((frame.index, record["track"]))
+    # Measured: 4 of 96 (49, 60, 73, 83), where the blob is the ball's streak (its own pixels
+    # green: g - r 0.00 to +0.04) passing the fist, which lies inside its box. Was 5 (and 50, a
+    # shadow on the wall nearer a poor prediction) before shades weighed less, 6 (and 39, a shred
+    # of the arm) before blobs were scored by the track's colour, 9 with a prediction that went
+    # straight on.
+    assert len(arm_like) <= 5, arm_like
     explained = sorted(f["explained"] for f in fitted)
-    assert explained[len(explained) // 2] > 0.35  # measured 0.47: the straight path of one
+    assert explained[len(explained) // 2] > 0.35  # measured 0.45: the straight path of one
     # exposure cannot follow the curved streak of the swing
     # Cold retries where the warm fit missed: measured 29 with the detector that cut streaks at
     # a neighbour's difference, 20 with the whole streak found, 19 with the turning prediction (19 with
-    # colour scoring too).
+    # colour scoring too, 18 with shades weighing less).
     assert summary["cold_starts"] <= 25
 
 
