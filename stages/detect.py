@@ -7,8 +7,9 @@ the one side a clip's end leaves), while a slow mover (an arm, a person) differs
 background there too, and a change of the scene still shows the same in the later ones: such
 pixels are dropped (:func:`moving_mask`), and what is left is split into blobs (fragments a few
 pixels apart joined). A tracked object is looked for near where its motion predicts it, among
-blobs large enough for its predicted size, preferring large blobs near the prediction; otherwise
-the largest blob wins.
+blobs large enough for its predicted size, preferring large blobs near the prediction and of
+its colour, and shades (a shadow's faint change of brightness) least; otherwise the largest blob
+wins.
 """
 
 from __future__ import annotations
@@ -280,7 +281,6 @@ most :data:`SHADE_CHROMA` (L1) and whose mean difference there (||I - B|| over R
 is under :data:`SHADE_CONTRAST`. circle_fast.avi's moving shadows: chromaticity 0.01 to 0.06,
 difference 0.10 to 0.13; its ball 0.07 to 0.29 in chromaticity; the dark objects of
 falling_two and falling_three, as grey as a shadow, differ by 0.15 to 0.50 where they start."""
-
 
 SHADE_PENALTY = 4.0
 """A shade weighs this many times less as a tracked object than another blob (:func:`pick_blob`):
