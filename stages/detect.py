@@ -256,14 +256,22 @@ def blob_colour(image: np.ndarray, background: np.ndarray, where: np.ndarray) ->
     are mostly background.
 
     Args:
-        image, background: (3, H, W) the frame and its background.
+        image, background: (3, H, W) the frame and its background, each uint8 or float in [0, 1].
         where: (H, W) bool, the blob.
     """
-    pixels = image[:, where].astype(np.float32)
-    change = np.linalg.norm(pixels - background[:, where].astype(np.float32), axis=0)
+    pixels, behind = _blob_pixels(image, where), _blob_pixels(background, where)
+    change = np.linalg.norm(pixels - behind, axis=0)
     mean = pixels[:, change >= np.quantile(change, 0.75)].mean(1)
     r, g, b = (float(v) for v in mean / max(float(mean.sum()), 1e-6))
     return r, g, b
+
+
+def _blob_pixels(image: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """(3, N) float32 in [0, 1]: the pixels of (3, H, W) ``image`` (uint8 or float in [0, 1]) where
+    ``where`` (H, W) holds. Each array by its own type: a still clip's frames are uint8 over a
+    float background where it is a given image or the whole clip's median."""
+    pixels = image[:, where].astype(np.float32)
+    return pixels / 255.0 if image.dtype == np.uint8 else pixels
 
 
 SHRED_RATIO = 1.25
@@ -292,12 +300,10 @@ def is_shade(image: np.ndarray, background: np.ndarray, where: np.ndarray) -> bo
     shadow or a flicker of the light makes: no object's own colour shows in it.
 
     Args:
-        image, background: (3, H, W) the frame and its background, uint8 or float in [0, 1].
+        image, background: (3, H, W) the frame and its background, each uint8 or float in [0, 1].
         where: (H, W) bool, the blob.
     """
-    scale = 255.0 if image.dtype == np.uint8 else 1.0
-    pixels = image[:, where].astype(np.float32) / scale
-    behind = background[:, where].astype(np.float32) / scale
+    pixels, behind = _blob_pixels(image, where), _blob_pixels(background, where)
     change = np.linalg.norm(pixels - behind, axis=0)
     strongest = change >= np.quantile(change, 0.75)
     own, other = pixels[:, strongest].mean(1), behind[:, strongest].mean(1)
@@ -350,16 +356,16 @@ class FrameBlobs:
         shred of a larger mover (the changed regions it lies in, slow movers' pixels
         included, hold at most :data:`SHRED_RATIO` times its area: an arm whose fringe moved
         fast) and not a shade (a faint change of brightness alone: the shadow a ball casts on
-        the wall). Without the frame's ``changed`` mask and pixels, every blob may be one."""
-        if self.changed is None or self.pixels is None:
-            return True
-        if self._changed_areas is None:
-            _, regions = cv2.connectedComponents(self.changed.astype(np.uint8), connectivity=8)
-            self._changed_areas = regions, np.bincount(regions.ravel())
-        regions, areas = self._changed_areas
-        touched = np.unique(regions[self.labels == label])
-        if float(areas[touched[touched > 0]].sum()) > SHRED_RATIO * self.area(label):
-            return False
+        the wall). The first needs the frame's ``changed`` mask, the second its pixels; without
+        them, a blob passes that test."""
+        if self.changed is not None:
+            if self._changed_areas is None:
+                _, regions = cv2.connectedComponents(self.changed.astype(np.uint8), connectivity=8)
+                self._changed_areas = regions, np.bincount(regions.ravel())
+            regions, areas = self._changed_areas
+            touched = np.unique(regions[self.labels == label])
+            if float(areas[touched[touched > 0]].sum()) > SHRED_RATIO * self.area(label):
+                return False
         return not self.shade(label)
 
     def shade(self, label: int) -> bool:
@@ -441,7 +447,8 @@ def pick_blob(
     prediction's gate), or None.
 
     Without a ``prediction`` the largest blob; with one, the blobs within its gate
-    (:func:`gate_distance`) weighed by area, nearness and the track's colour.
+    (:func:`gate_distance`) weighed by area, nearness and the track's colour, a shade
+    (:func:`is_shade`) :data:`SHADE_PENALTY` times less.
     """
     best: tuple[float, int] | None = None
     candidates: list[int] = []

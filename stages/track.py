@@ -457,8 +457,8 @@ largest blob: another fast mover, not a speck of noise or a shred of a slow one.
 def _new_objects(found: FrameBlobs, taken: set[int], config: Config, alone: bool) -> list[int]:
     """The labels of the blobs no track took that are objects of their own, largest first.
 
-    Beside another track (all but the largest blob when no track is ``alone``, every one
-    otherwise), a blob must also be an object of its own by :meth:`FrameBlobs.own_object`:
+    Beside another track (when ``alone``, no track live, every blob but the largest; otherwise
+    every one), a blob must also be an object of its own by :meth:`FrameBlobs.own_object`:
     with every mover tracked, circle_fast.avi's arm and the ball's shadow on the wall started
     twelve tracks beside the ball's, which took the ball's blob from it in turn."""
     areas = [found.area(k) for k in range(1, found.count)]
@@ -483,9 +483,10 @@ def track_and_fit(
     Every fast mover has its own track (at most ``video.max_objects`` at once; 0: all). In each
     frame the tracks look for their objects first, each among the blobs that no other has
     taken, in :func:`_choosing_order` (longest first, but the nearest of those that would take
-    one blob before the others); the blobs left that are objects of their own (:data:`OTHER_SHARE`) start
-    new tracks, largest first. ``masks`` gives each fit its sub-frame masks (None: the
-    difference mask).
+    one blob before the others, a track of one frame after longer ones); the blobs left that
+    are objects of their own (:data:`OTHER_SHARE`,
+    :meth:`~sfb_video.stages.detect.FrameBlobs.own_object`) start new tracks, largest first.
+    ``masks`` gives each fit its sub-frame masks (None: the difference mask).
 
     Returns:
         the status of every object of every frame read (one ``no_object`` status for a frame

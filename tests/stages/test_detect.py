@@ -171,6 +171,12 @@ def test_a_shred_of_a_larger_mover_or_a_shade_is_no_object_of_its_own() -> None:
     own = {tuple(int(v) for v in alone.stats[k, :4]): alone.own_object(k) for k in range(1, alone.count)}
     assert own == {ball: True, fringe: True, shadow: False, dark: True}
     assert all(frame_blobs(moving, CONFIG).own_object(k) for k in range(1, found.count))
+    # A frame of an 8-bit clip over a float background (a given image, or the whole clip's
+    # median), and both float: each is read by its own type.
+    for pair in ((image, background.float() / 255), (image.float() / 255, background.float() / 255)):
+        mixed = frame_blobs(moving, CONFIG, pair, changed)
+        own = {tuple(int(v) for v in mixed.stats[k, :4]): mixed.own_object(k) for k in range(1, mixed.count)}
+        assert own == {ball: True, fringe: False, shadow: False, dark: True}
 
 
 def test_a_tracked_object_is_not_taken_for_a_nearer_shadow_but_a_shade_alone_is_taken() -> None:
