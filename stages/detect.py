@@ -251,19 +251,42 @@ def _blob_stats(mask: np.ndarray, labels: np.ndarray, count: int) -> tuple[np.nd
 
 
 def blob_colour(image: np.ndarray, background: np.ndarray, where: np.ndarray) -> tuple[float, float, float]:
-    """The chromaticity (r, g, b summing to 1) of the quarter of a blob's pixels that differ
-    most from the background: nearest the object's own colour, where a streak's fainter parts
-    are mostly background.
+    """The chromaticity (r, g, b summing to 1) of a blob's :func:`strongest_quarter`.
 
     Args:
         image, background: (3, H, W) the frame and its background, each uint8 or float in [0, 1].
         where: (H, W) bool, the blob.
     """
+    r, g, b = (float(v) for v in _chromaticity(strongest_quarter(image, background, where).own))
+    return r, g, b
+
+
+@dataclass(frozen=True)
+class Quarter:
+    """What the quarter of a blob's pixels that differ most from the background shows: nearest
+    the object's own colour, where a streak's fainter parts are mostly background.
+
+    Attributes:
+        own: (3,) their mean RGB in [0, 1]; behind: the background's there; difference: their
+            mean ||I - B||.
+    """
+
+    own: np.ndarray
+    behind: np.ndarray
+    difference: float
+
+
+def strongest_quarter(image: np.ndarray, background: np.ndarray, where: np.ndarray) -> Quarter:
+    """The :class:`Quarter` of the blob ``where`` (H, W) bool in (3, H, W) ``image`` over
+    ``background``, each uint8 or float in [0, 1]."""
     pixels, behind = _blob_pixels(image, where), _blob_pixels(background, where)
     change = np.linalg.norm(pixels - behind, axis=0)
-    mean = pixels[:, change >= np.quantile(change, 0.75)].mean(1)
-    r, g, b = (float(v) for v in mean / max(float(mean.sum()), 1e-6))
-    return r, g, b
+    strongest = change >= np.quantile(change, 0.75)
+    return Quarter(pixels[:, strongest].mean(1), behind[:, strongest].mean(1), float(change[strongest].mean()))
+
+
+def _chromaticity(rgb: np.ndarray) -> np.ndarray:
+    return rgb / max(float(rgb.sum()), 1e-6)
 
 
 def _blob_pixels(image: np.ndarray, where: np.ndarray) -> np.ndarray:
@@ -295,20 +318,12 @@ SHADE_PENALTY = 4.0
 a falling grey object's faint streaks are shades too, and still taken where nothing else is."""
 
 
-def is_shade(image: np.ndarray, background: np.ndarray, where: np.ndarray) -> bool:
-    """Whether a blob is a faint change of brightness alone (:data:`SHADE_CONTRAST`), as a
-    shadow or a flicker of the light makes: no object's own colour shows in it.
-
-    Args:
-        image, background: (3, H, W) the frame and its background, each uint8 or float in [0, 1].
-        where: (H, W) bool, the blob.
-    """
-    pixels, behind = _blob_pixels(image, where), _blob_pixels(background, where)
-    change = np.linalg.norm(pixels - behind, axis=0)
-    strongest = change >= np.quantile(change, 0.75)
-    own, other = pixels[:, strongest].mean(1), behind[:, strongest].mean(1)
-    chroma = float(np.abs(own / max(float(own.sum()), 1e-6) - other / max(float(other.sum()), 1e-6)).sum())
-    return chroma <= SHADE_CHROMA and float(change[strongest].mean()) < SHADE_CONTRAST
+def is_shade(quarter: Quarter) -> bool:
+    """Whether a blob (its :func:`strongest_quarter`) is a faint change of brightness alone
+    (:data:`SHADE_CONTRAST`), as a shadow or a flicker of the light makes: no object's own
+    colour shows in it."""
+    chroma = float(np.abs(_chromaticity(quarter.own) - _chromaticity(quarter.behind)).sum())
+    return chroma <= SHADE_CHROMA and quarter.difference < SHADE_CONTRAST
 
 
 @timed("detect")
@@ -347,9 +362,8 @@ class FrameBlobs:
     changed: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        self._colours: dict[int, tuple[float, float, float]] = {}
+        self._quarters: dict[int, Quarter] = {}
         self._changed_areas: tuple[np.ndarray, np.ndarray] | None = None
-        self._shades: dict[int, bool] = {}
 
     def own_object(self, label: int) -> bool:
         """Whether blob ``label`` may be an object of its own beside another tracked one: not a
@@ -370,19 +384,24 @@ class FrameBlobs:
 
     def shade(self, label: int) -> bool:
         """Whether blob ``label`` is a shade (:func:`is_shade`); False without the frame."""
-        if self.pixels is None:
-            return False
-        if label not in self._shades:
-            self._shades[label] = is_shade(*self.pixels, self.labels == label)
-        return self._shades[label]
+        quarter = self._quarter(label)
+        return quarter is not None and is_shade(quarter)
 
     def colour(self, label: int) -> tuple[float, float, float] | None:
         """The chromaticity of blob ``label`` (:func:`blob_colour`), None without the frame."""
+        quarter = self._quarter(label)
+        if quarter is None:
+            return None
+        r, g, b = (float(v) for v in _chromaticity(quarter.own))
+        return r, g, b
+
+    def _quarter(self, label: int) -> Quarter | None:
+        """Blob ``label``'s :func:`strongest_quarter`, found once for its colour and its shade."""
         if self.pixels is None:
             return None
-        if label not in self._colours:
-            self._colours[label] = blob_colour(*self.pixels, self.labels == label)
-        return self._colours[label]
+        if label not in self._quarters:
+            self._quarters[label] = strongest_quarter(*self.pixels, self.labels == label)
+        return self._quarters[label]
 
     def area(self, label: int) -> float:
         return float(self.stats[label, cv2.CC_STAT_AREA])
