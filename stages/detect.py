@@ -419,28 +419,37 @@ class FrameBlobs:
 
     def split(self, label: int, predictions: list[Prediction], min_area: float) -> list[np.ndarray] | None:
         """Blob ``label`` shared out among the objects whose streaks ``predictions`` foresee
-        touching in it: each pixel to the nearest predicted streak (the segment between its
-        ends, less the object's radius). (H, W) bool masks in the predictions' order, or None
-        where a prediction has no ends or a part would be smaller than ``min_area`` pixels."""
-        if any(p.ends is None for p in predictions):
+        touching in it (:func:`share_out`): (H, W) bool masks in the predictions' order, or None."""
+        return share_out(self.labels == label, predictions, min_area)
+
+
+def share_out(
+    blob: np.ndarray, predictions: list[Prediction], min_area: float, origin: tuple[int, int] = (0, 0)
+) -> list[np.ndarray] | None:
+    """An (h, w) bool ``blob`` whose top-left pixel is the frame's ``origin`` (x, y) shared out
+    among the objects whose streaks ``predictions`` foresee touching in it: each pixel to the
+    nearest predicted streak (the segment between its ends, less the object's radius). (h, w)
+    bool masks in the predictions' order, or None where a prediction has no ends or a part
+    would be smaller than ``min_area`` pixels."""
+    if any(p.ends is None for p in predictions):
+        return None
+    v, u = np.nonzero(blob)
+    points = np.stack((u + origin[0], v + origin[1]), 1).astype(np.float64)
+    distances = []
+    for p in predictions:
+        a, b = (np.array(e, dtype=np.float64) for e in p.ends)  # type: ignore[union-attr]
+        along = np.clip((points - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-9), 0.0, 1.0)
+        nearest = a + along[:, None] * (b - a)
+        distances.append(np.linalg.norm(points - nearest, axis=1) - p.diameter / 2)
+    owner = np.argmin(np.stack(distances), axis=0)
+    parts = []
+    for k in range(len(predictions)):
+        part = np.zeros(blob.shape, dtype=bool)
+        part[v[owner == k], u[owner == k]] = True
+        if part.sum() < min_area:
             return None
-        v, u = np.nonzero(self.labels == label)
-        points = np.stack((u, v), 1).astype(np.float64)
-        distances = []
-        for p in predictions:
-            a, b = (np.array(e, dtype=np.float64) for e in p.ends)  # type: ignore[union-attr]
-            along = np.clip((points - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-9), 0.0, 1.0)
-            nearest = a + along[:, None] * (b - a)
-            distances.append(np.linalg.norm(points - nearest, axis=1) - p.diameter / 2)
-        owner = np.argmin(np.stack(distances), axis=0)
-        parts = []
-        for k in range(len(predictions)):
-            part = np.zeros(self.labels.shape, dtype=bool)
-            part[v[owner == k], u[owner == k]] = True
-            if part.sum() < min_area:
-                return None
-            parts.append(part)
-        return parts
+        parts.append(part)
+    return parts
 
 
 def frame_blobs(

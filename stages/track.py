@@ -8,6 +8,10 @@ track's last frame) and saved into the run folder as soon as it is done, which i
 resumed run reuses. One frame cannot tell which end of its streak came first (DeFMO's sub-frame
 masks order a frame, but may run either way themselves): :func:`join` picks the directions that
 make consecutive frames meet end to start, and that order between frames wins over DeFMO's.
+
+Where several objects' streaks touch, their blob is shared out among their tracks by nearness
+to their predicted streaks; an object whose streak lay inside another's blob before it had a
+track of its own is found there when its track, two frames on, looks back.
 """
 
 from __future__ import annotations
@@ -23,13 +27,14 @@ from typing import TypeVar
 import numpy as np
 import torch
 
-from sfb_video.config import Config
-from sfb_video.crop import Box
+from sfb_video.atomic import atomic_write_bytes
+from sfb_video.config import Config, CropConfig
+from sfb_video.crop import Box, crop_box, mask_box
 from sfb_video.errors import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion
 from sfb_video.results import FrameResult, load_result, save_result
-from sfb_video.run_folder import frame_path, saved_frames
+from sfb_video.run_folder import ensure_folder, followed_path, frame_path, saved_frames
 from sfb_video.stages.detect import (
     FrameBlobs,
     Neighbour,
@@ -39,6 +44,7 @@ from sfb_video.stages.detect import (
     gate_distance,
     moving_mask,
     pick_blob,
+    share_out,
     still_there,
 )
 from sfb_video.stages.fit import continued, fit_detection
@@ -486,7 +492,9 @@ def track_and_fit(
     one blob before the others, a track of one frame after longer ones); the blobs left that
     are objects of their own (:data:`OTHER_SHARE`,
     :meth:`~sfb_video.stages.detect.FrameBlobs.own_object`) start new tracks, largest first.
-    ``masks`` gives each fit its sub-frame masks (None: the difference mask).
+    A track fitted in its second frame looks back for its object inside other tracks' blobs
+    of the frames before its first (:func:`_look_back`). ``masks`` gives each fit its sub-frame
+    masks (None: the difference mask).
 
     Returns:
         the status of every object of every frame read (one ``no_object`` status for a frame
@@ -494,6 +502,7 @@ def track_and_fit(
     """
     saved = saved_frames(folder)
     statuses: list[FrameStatus] = []
+    held: deque[list[_Held]] = deque(maxlen=LOOK_BACK + 2)
     numbers = TrackNumbers()
     live: list[Tracker] = []
     limit = config.video.max_objects or math.inf
@@ -550,28 +559,30 @@ def track_and_fit(
         untracked = len(fresh) - room
         owner = {c.label: c.tracker for c in objects}
         results: list[FrameStatus] = []
+        fits: list[tuple[_Claim, _HeldFit]] = []
+        second_frames: list[Tracker] = []
         for claim in objects:
             tracker, label = claim.tracker, claim.label
             detection = found.detection(frame.index, label, claim.others, claim.part)
             key = (frame.index, tracker.upcoming)
-            loaded = load_result(frame_path(folder, *key)) if key in saved else None
+            loaded = _followed(folder, key) if key in saved else None
             note = f"{untracked} other moving object(s) seen, not tracked (video.max_objects)" if untracked else ""
             crossed = [t for t, lab in merged if lab == label and t.number is not None]
             if crossed:
                 note = f"its streak merged with track(s) {', '.join(str(t.number) for t in crossed)}'s"
-            if claim.shared_with is not None:
-                note = f"its streak touched track {claim.shared_with.number}'s: their pixels shared out by nearness"
+            if claim.shared_with:
+                others = ", ".join(str(t.number) for t in claim.shared_with)
+                note = f"its streak touched track(s) {others}'s: their pixels shared out by nearness"
+            start = tracker.previous if config.video.warm_start else None
+            before = tracker.earlier
             try:
-                start = tracker.previous if config.video.warm_start else None
-                result = loaded or fit_detection(
-                    frame, detection, camera, config, start, device, masks, tracker.earlier
-                )
+                result = loaded or fit_detection(frame, detection, camera, config, start, device, masks, before)
             except NoObjectError as exc:
                 tracker.lose()
                 results.append(FrameStatus(frame.index, "no_object", detection.box, str(exc)))
                 report_result = None
             else:
-                shared = claim.shared_with is not None
+                shared = bool(claim.shared_with)
                 track, result, reversed_previous = tracker.add(result, detection.colour, shared)
                 if reversed_previous is not None:
                     save_result(folder, reversed_previous)
@@ -580,6 +591,9 @@ def track_and_fit(
                 if tracker not in live:
                     live.append(tracker)
                 results.append(FrameStatus(frame.index, "fitted", detection.box, note, track, shared))
+                fits.append((claim, _HeldFit(tracker, track, claim.prediction, claim.part, start, before)))
+                if not shared and tracker.length == 2:
+                    second_frames.append(tracker)
                 report_result = result
             if report is not None:
                 report(results[-1], report_result)
@@ -594,21 +608,26 @@ def track_and_fit(
             if report is not None:
                 report(results[-1], None)
         statuses += sorted(results, key=lambda r: -1 if r.track is None else r.track)
+        if limit > 1:  # one track at a time: none starts beside another to look back
+            held.append(_held_blobs(frame, found, fits, config))
+        for tracker in second_frames:
+            looked = _look_back(tracker, list(held), folder, saved, camera, config, device, masks)
+            statuses = _restated(statuses, looked)
     return short_tracks_dropped(statuses, config.video.min_track_frames)
 
 
 @dataclass
 class _Claim:
     """A track's claim on a blob of one frame: the blob, how many others could have been its
-    object, the prediction that found it, and where two tracks' streaks touch in it, the part
-    of it that is this track's (:meth:`FrameBlobs.split`) and the track it was shared with."""
+    object, the prediction that found it, and where tracks' streaks touch in it, the part of it
+    that is this track's (:meth:`FrameBlobs.split`) and the tracks it was shared with."""
 
     tracker: Tracker
     label: int
     others: int
     prediction: Prediction | None
     part: np.ndarray | None = None
-    shared_with: Tracker | None = None
+    shared_with: list[Tracker] = dataclasses.field(default_factory=list)
 
 
 def _shared(
@@ -618,20 +637,279 @@ def _shared(
     tracker: Tracker,
     config: Config,
 ) -> _Claim | None:
-    """Where ``tracker``'s object is in a blob another track took first (their streaks touch or
-    cross), the blob shared out between the two by nearness to their predicted streaks: this
-    track's claim, the first's narrowed to its own part. None where it cannot be shared (the
-    first has no prediction or already shares, or a part would be too small): then the track
-    takes the best blob left, or coasts through the frame (a track of one frame ends)."""
+    """Where ``tracker``'s object is in a blob other tracks took first (their streaks touch or
+    cross), the blob shared out among them all by nearness to their predicted streaks: this
+    track's claim, the others' narrowed to their own parts. None where it cannot be shared (one
+    of them has no prediction, or a part would be too small): then the track takes the best blob
+    left, or coasts through the frame (a track of one frame ends).
+
+    Three at once: the slow-beside scenario's pen merges into the blob that the first and second
+    objects already share (``benchmarks.multi_object``)."""
     (label, _), _, prediction = crossing
-    first = next(c for c in claims if c.label == label)
-    if first.prediction is None or first.part is not None:
+    first = [c for c in claims if c.label == label]
+    predicted = [c.prediction for c in first if c.prediction is not None]
+    if len(predicted) < len(first):
         return None
-    parts = found.split(label, [first.prediction, prediction], config.detect.min_area_px)
+    parts = found.split(label, [*predicted, prediction], config.detect.min_area_px)
     if parts is None:
         return None
-    first.part, first.shared_with = parts[0], tracker
-    return _Claim(tracker, label, 0, prediction, parts[1], first.tracker)
+    for claim, part in zip(first, parts, strict=False):
+        claim.part = part
+        claim.shared_with = [*claim.shared_with, tracker]
+    return _Claim(tracker, label, 0, prediction, parts[-1], [c.tracker for c in first])
+
+
+LOOK_BACK = 2
+"""Frames before a new track's first in which it looks for its object inside a blob that other
+tracks took (:func:`_look_back`): the slow-beside scenario's pen (``benchmarks.multi_object``)
+starts inside the second object's blob and comes out of it two frames later."""
+
+LOOK_BACK_SHARE = 0.5
+"""Looking back, a track's share of another track's blob must be at least this share of its
+own first blob's area: the object is there, not the other's fringe nearest its path."""
+
+
+@dataclass
+class _HeldFit:
+    """One track's fit of a blob of a recent frame: its track, the prediction that found it, its
+    part of the blob where tracks shared it (in the blob's region), and the fit's warm start and
+    the frame before that (:func:`~sfb_video.stages.fit.fit_detection`), to refit it from."""
+
+    tracker: Tracker
+    number: int
+    prediction: Prediction | None
+    part: np.ndarray | None
+    start: FrameResult | None
+    earlier: FrameResult | None
+
+
+@dataclass
+class _Held:
+    """A blob that tracks took in a recent frame, kept for a track that starts later to look back
+    into (:func:`_look_back`): its ``region`` of the frame (:func:`held_region`), the frame's
+    and background's pixels there, (3, h, w) each, the blob there, (h, w) bool, and its fits."""
+
+    index: int
+    shape: tuple[int, int]
+    region: Box
+    pixels: torch.Tensor
+    background: torch.Tensor
+    blob: np.ndarray
+    fits: list[_HeldFit]
+
+    def frame(self) -> FrameWithBackground:
+        """The frame as a fit of a part of the blob sees it: its region's pixels in place, the
+        rest black (no crop of a part reaches it)."""
+        x, y, w, h = self.region
+        pixels = self.pixels.new_zeros((3, *self.shape))
+        background = self.background.new_zeros((3, *self.shape))
+        pixels[:, y : y + h, x : x + w] = self.pixels
+        background[:, y : y + h, x : x + w] = self.background
+        return FrameWithBackground(self.index, pixels, background)
+
+    def detection(self, part: np.ndarray) -> Detection:
+        """The ``part`` (h, w) of the blob as the frame's detection."""
+        box = mask_box(part)
+        assert box is not None  # share_out gives no empty part
+        x, y, w, h = self.region
+        mask = torch.zeros(self.shape, dtype=torch.bool)
+        mask[y : y + h, x : x + w] = torch.from_numpy(part)
+        return Detection(self.index, (box[0] + x, box[1] + y, box[2], box[3]), mask)
+
+
+def held_region(box: Box, frame_size: tuple[int, int], config: CropConfig) -> Box:
+    """The part of a (W, H) frame that holds the crop (:func:`~sfb_video.crop.crop_box`) and the
+    DeFMO window of every box inside ``box``: a box inside is no larger, and its centre lies in
+    ``box``, so its crop is no larger than ``box``'s (unclipped by the frame) and reaches at most
+    half that past ``box``; at the frame's edge both shift inwards alike."""
+    x, y, w, h = box
+    width, height = frame_size
+    widest = dataclasses.replace(config, margin=max(config.margin, config.defmo_margin))
+    _, _, cw, ch = crop_box(box, (1 << 30, 1 << 30), widest)
+    rw, rh = min(w + cw + 2, width), min(h + ch + 2, height)  # 2: the crop's rounding
+    x0 = math.floor(min(max(x + w / 2 - rw / 2, 0), width - rw))
+    y0 = math.floor(min(max(y + h / 2 - rh / 2, 0), height - rh))
+    return x0, y0, rw, rh
+
+
+def _held_blobs(
+    frame: FrameWithBackground, found: FrameBlobs, fits: list[tuple[_Claim, _HeldFit]], config: Config
+) -> list[_Held]:
+    """The blobs that tracks took in ``frame``, with what :func:`_look_back` needs of them."""
+    shape = (int(frame.pixels.shape[1]), int(frame.pixels.shape[2]))
+    held: list[_Held] = []
+    for label in dict.fromkeys(claim.label for claim, _ in fits):
+        x, y, w, h = (int(v) for v in found.stats[label, :4])
+        rx, ry, rw, rh = region = held_region((x, y, w, h), (shape[1], shape[0]), config.crop)
+        window = (slice(ry, ry + rh), slice(rx, rx + rw))
+        blob = found.labels[window] == label
+        kept = [
+            dataclasses.replace(fit, part=None if claim.part is None else claim.part[window])
+            for claim, fit in fits
+            if claim.label == label
+        ]
+        pixels = frame.pixels[(slice(None), *window)].clone()
+        background = frame.background_pixels[(slice(None), *window)].clone()
+        held.append(_Held(frame.index, shape, region, pixels, background, blob, kept))
+    return held
+
+
+def _look_back(
+    tracker: Tracker,
+    held: list[list[_Held]],
+    folder: Path,
+    saved: set[tuple[int, int]],
+    camera: PinholeCamera,
+    config: Config,
+    device: torch.device,
+    masks: MaskSource | None,
+) -> list[FrameStatus]:
+    """A track just fitted in its second frame looks back for its object in the :data:`LOOK_BACK`
+    frames before its first, inside blobs that other tracks, still going, took whole (its object
+    had no track yet to share them with): where its streak, moved back at the pace of its first
+    two in the image, takes enough of such a blob (:data:`LOOK_BACK_SHARE`), the blob is shared
+    out, each track's part refitted (its first fit kept apart, :func:`followed_path`, for a
+    resumed run to follow the tracks as this one did), and the track's fit there joins it
+    (warm from its next frame, the time run backwards).
+
+    Returns:
+        the statuses of the frames looked into that changed: the other tracks' and this one's.
+    """
+    first, second = tracker.earlier, tracker.previous
+    assert first is not None and second is not None and tracker.number is not None
+    by_index = {blobs[0].index: blobs for blobs in held if blobs}
+    mine = [(h, f) for h in by_index.get(first.index, []) for f in h.fits if f.tracker is tracker]
+    if not mine:
+        return []
+    own_area = float((mine[0][0].blob if mine[0][1].part is None else mine[0][1].part).sum())
+    later, restated = first, []
+    for index in range(first.index - 1, first.index - 1 - LOOK_BACK, -1):
+        prediction = _glided_back(first, second, index, camera)
+        best: tuple[float, _Held, list[np.ndarray]] | None = None
+        for blob in by_index.get(index, []):
+            if not any(_goes_on(f, first.index) for f in blob.fits):
+                continue
+            # A track's first frame was found with no prediction: where its next two put it.
+            predicted = [f.prediction or _first_prediction(index, f, folder, camera) for f in blob.fits]
+            ahead = [p for p in predicted if p is not None]
+            if len(ahead) < len(predicted):
+                continue
+            parts = share_out(blob.blob, [*ahead, prediction], config.detect.min_area_px, blob.region[:2])
+            share = 0.0 if parts is None else float(parts[-1].sum())
+            if parts is not None and share >= LOOK_BACK_SHARE * own_area and (best is None or share > best[0]):
+                best = (share, blob, parts)
+        if best is None:
+            break
+        _, blob, parts = best
+        frame = blob.frame()
+        found_late = (index, tracker.number) in saved  # a resumed run: refitted and saved before
+        fits = [*blob.fits, _HeldFit(tracker, tracker.number, prediction, parts[-1], None, None)]
+        # This track's fit starts warm from its next frame, its time run backwards.
+        mirrored = dataclasses.replace(later.reversed(), index=2 * index - later.index)
+        starts = [f.start for f in blob.fits] + [mirrored]
+        try:
+            results = [
+                _refitted(frame, blob.detection(part), fit, start, folder, camera, config, device, masks, found_late)
+                for fit, part, start in zip(fits, parts, starts, strict=True)
+            ]
+        except NoObjectError:
+            break
+        for fit, part, result in zip(fits, parts, results, strict=True):
+            first_fit = followed_path(folder, index, fit.number)
+            if fit.tracker is not tracker and not first_fit.is_file():
+                ensure_folder(first_fit.parent)
+                atomic_write_bytes(first_fit, frame_path(folder, index, fit.number).read_bytes())
+            save_result(folder, result)  # this track's last: a resumed run finds it and all saved
+            fit.part = part
+            others = ", ".join(str(f.number) for f in fits if f is not fit)
+            note = f"its streak touched track(s) {others}'s: their pixels shared out by nearness, looking back"
+            restated.append(FrameStatus(index, "fitted", blob.detection(part).box, note, fit.number, True))
+        blob.fits.append(fits[-1])
+        tracker.length += 1
+        later = results[-1]
+    return restated
+
+
+def _refitted(
+    frame: FrameWithBackground,
+    detection: Detection,
+    fit: _HeldFit,
+    start: FrameResult | None,
+    folder: Path,
+    camera: PinholeCamera,
+    config: Config,
+    device: torch.device,
+    masks: MaskSource | None,
+    found_late: bool,
+) -> FrameResult:
+    """A track's fit of its part of a blob, found looking back (:func:`_look_back`), warm from
+    ``start``, in the track's time direction (:func:`_joined`); ``found_late``: saved already
+    (a resumed run)."""
+    if found_late:
+        return load_result(frame_path(folder, frame.index, fit.number))
+    result = fit_detection(frame, detection, camera, config, start, device, masks, fit.earlier)
+    return _joined(dataclasses.replace(result, track=fit.number), fit.start, folder, camera, config)
+
+
+def _glided_back(first: FrameResult, second: FrameResult, index: int, camera: PinholeCamera) -> Prediction:
+    """Frame ``index``'s prediction, before a track's ``first`` frame: its streak moved back in
+    the image at the pace from ``first`` to ``second`` (as :meth:`Tracker._glided` moves on)."""
+    start, end = predict(first.state.motion, camera), predict(second.state.motion, camera)
+    steps = (index - first.index) / (second.index - first.index)
+    du, dv = (steps * (b - a) for a, b in zip(start.centre, end.centre, strict=True))
+
+    def back(point: tuple[float, float]) -> tuple[float, float]:
+        return point[0] + du, point[1] + dv
+
+    ends = None if start.ends is None else (back(start.ends[0]), back(start.ends[1]))
+    return Prediction(back(start.centre), start.diameter, None, ends)
+
+
+def _first_prediction(index: int, fit: _HeldFit, folder: Path, camera: PinholeCamera) -> Prediction | None:
+    """Where a track's first frame ``index`` (``fit``, found with no prediction) should be by the
+    track's next two saved frames, or None without them."""
+    paths = [frame_path(folder, index + k, fit.number) for k in (1, 2)]
+    if not all(path.is_file() for path in paths):
+        return None
+    return _glided_back(load_result(paths[0]), load_result(paths[1]), index, camera)
+
+
+def _followed(folder: Path, key: tuple[int, int]) -> FrameResult:
+    """The saved fit a track went on from in frame and track ``key``: its first fit, where a
+    track that started later refitted the frame (:func:`_look_back`)."""
+    first_fit = followed_path(folder, *key)
+    return load_result(first_fit if first_fit.is_file() else frame_path(folder, *key))
+
+
+def _goes_on(fit: _HeldFit, index: int) -> bool:
+    """Whether ``fit``'s track still goes on in frame ``index`` or later."""
+    return fit.tracker.number == fit.number and fit.tracker.previous is not None and fit.tracker.previous.index >= index
+
+
+def _joined(
+    result: FrameResult, start: FrameResult | None, folder: Path, camera: PinholeCamera, config: Config
+) -> FrameResult:
+    """A refitted frame of a track in the track's time direction: joined to the frame it started
+    from, or where it started cold (the track's first frame), to the track's next saved frame."""
+    e = config.video.exposure_fraction
+    options = (result, result.reversed())
+    if start is not None:
+        return min(options, key=lambda r: join_gap(start, r, camera, e))
+    after = frame_path(folder, result.index + 1, result.track)
+    if not after.is_file():
+        return result
+    following = load_result(after)
+    return min(options, key=lambda r: join_gap(r, following, camera, e))
+
+
+def _restated(statuses: list[FrameStatus], changed: list[FrameStatus]) -> list[FrameStatus]:
+    """``statuses`` (in frame order, then track order) with ``changed`` ones in place of those of
+    their frames and tracks, or added among their frames'."""
+    if not changed:
+        return statuses
+    new = {(s.index, s.track): s for s in changed}
+    kept = [s for s in statuses if (s.index, s.track) not in new]
+    return sorted([*kept, *new.values()], key=lambda s: (s.index, -1 if s.track is None else s.track))
 
 
 def short_tracks_dropped(statuses: list[FrameStatus], least: int) -> list[FrameStatus]:

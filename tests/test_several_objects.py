@@ -17,6 +17,8 @@ from benchmarks import multi_object
 from sfb_video.config import Config, load_config
 from sfb_video.crop import Box
 from sfb_video.evaluation.objects import Coverage, box_iou, cover_objects, spurious_tracks
+from sfb_video.results import load_result
+from sfb_video.run_folder import frame_path, saved_frames
 from sfb_video.stages.background import running_median, with_backgrounds
 from sfb_video.stages.process import ProcessOptions, process_clip
 from sfb_video.stages.track import track_and_fit
@@ -91,12 +93,14 @@ def test_two_movers_on_one_path_keep_their_identities(tmp_path: Path, scale: flo
     assert sorted(owner.values(), key=min) == [{0}, {1}], owner  # each track one object, all along
 
 
-def test_three_movers_touching_in_turn_keep_their_tracks(tmp_path: Path) -> None:
+def test_three_movers_touching_in_turn_keep_their_tracks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     # The first object's streak touches the second's in frames 3-4 and the pen's in 5-6: four
     # shared frames in a row, which a track coasting at most three ended in (its last frame then
-    # a track of one, dropped). And the slow box's one-frame track, its direction unknown, went
-    # on through the others' blobs and took the pen's in frame 3.
-    _, truths, statuses = _tracked("three, a slow one beside", _config(), tmp_path)
+    # a track of one, dropped). The slow box's one-frame track, its direction unknown, went on
+    # through the others' blobs and took the pen's in frame 3. In frame 5 the pen's streak
+    # touches the blob the other two already share. In frames 0-1 it lies inside the second's
+    # blob, before it has a track: its track, fitted in frames 2-3, looks back for it there.
+    clip, truths, statuses = _tracked("three, a slow one beside", _config(), tmp_path)
     # A track's box is its nearest object's when centred within 20 px of it (shared-out parts
     # are small, so box overlap would miss them), but not where two objects are centred within 10
     # px of each other (frame 4: there the first and second are one over the other).
@@ -111,11 +115,37 @@ def test_three_movers_touching_in_turn_keep_their_tracks(tmp_path: Path) -> None
                 found.setdefault(k, {}).setdefault(s.track, set()).add(s.index)
     main = [max(found[k], key=lambda t: len(found[k][t])) for k in range(len(truths))]
     assert len(set(main)) == 3, found  # each object its own track
-    # The first two found by their own tracks in every frame where they are apart; the pen is
-    # inside the second's blob in frames 0-1 (no track of its own yet) and merges in frame 5.
     assert found[0] == {main[0]: {0, 1, 2, 3, 5, 6, 7}}, found
     assert found[1] == {main[1]: {0, 1, 2, 3, 5, 6, 7}}, found
-    assert len(found[2][main[2]]) >= 5 and len(found[2]) == 1, found
+    assert found[2] == {main[2]: set(range(8))}, found
+    looked = [(s.index, s.track) for s in statuses if s.touched and s.index < 2]
+    assert sorted(looked) == [(0, main[1]), (0, main[2]), (1, main[1]), (1, main[2])], statuses
+
+    # Stopped after the look back refitted frames 0-1 and resumed, the run goes on as it went:
+    # a resumed run follows the second object from its first fits there, as this one did.
+    config = _config()
+    frames = with_backgrounds(tmp_path / "clip.mp4", config.video, clip.frames.shape[0])
+    calls = sum(1 for s in statuses if s.status in ("fitted", "dropped") and s.index <= 3) + 2
+    real_fit = sfb_video.stages.track.fit_detection
+
+    def stop_in_frame_four(*args: object, **kwargs: object) -> object:
+        nonlocal calls
+        calls -= 1
+        if calls < 0:
+            raise KeyboardInterrupt
+        return real_fit(*args, **kwargs)
+
+    (tmp_path / "resumed").mkdir()
+    with monkeypatch.context() as patch:
+        patch.setattr(sfb_video.stages.track, "fit_detection", stop_in_frame_four)
+        with pytest.raises(KeyboardInterrupt):
+            track_and_fit(frames, tmp_path / "resumed", clip.camera, config, CPU)
+    assert (tmp_path / "resumed" / "frames" / "followed").is_dir()  # the look back was done
+    frames = with_backgrounds(tmp_path / "clip.mp4", config.video, clip.frames.shape[0])
+    assert track_and_fit(frames, tmp_path / "resumed", clip.camera, config, CPU) == statuses
+    for key in saved_frames(tmp_path / "run"):
+        a, b = (load_result(frame_path(root, *key)) for root in (tmp_path / "run", tmp_path / "resumed"))
+        assert torch.equal(a.state.motion.x0, b.state.motion.x0) and a.detection_box == b.detection_box, key
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,6 +12,7 @@ import torch
 
 from benchmarks import detect as detect_benchmark
 from sfb_video.config import load_config
+from sfb_video.crop import crop_box
 from sfb_video.evaluation.objects import box_iou
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.prototypes import load_prototype
@@ -20,13 +21,17 @@ from sfb_video.model.scene import ObjectState
 from sfb_video.results import FrameResult
 from sfb_video.run_folder import saved_frames
 from sfb_video.stages.background import running_median
-from sfb_video.stages.detect import frame_blobs
+from sfb_video.stages.detect import frame_blobs, share_out
 from sfb_video.stages.fit import continued
 from sfb_video.stages.track import (
     Tracker,
     _choosing_order,
+    _Claim,
     _new_objects,
+    _restated,
+    _shared,
     follow,
+    held_region,
     predict,
     short_tracks_dropped,
     track_and_fit,
@@ -216,3 +221,65 @@ def test_beside_a_tracked_object_only_objects_of_their_own_start_tracks() -> Non
     # No track yet: the largest blob starts one whatever it is, as with one object tracked.
     assert [box[k] for k in _new_objects(found, set(), config, alone=True)] == [shadow, ball, other]
     assert [box[k] for k in _new_objects(found, {label[ball]}, config, alone=False)] == [other]
+
+
+def test_a_blob_three_streaks_touch_in_is_shared_out_among_all_three() -> None:
+    # The slow-beside scenario's pen merged into the blob the first and second objects already
+    # shared: it could not share a shared blob, and coasted through the frame.
+    config = load_config("fast")
+    moving = np.zeros((40, 100), bool)
+    moving[15:25, 5:95] = True  # three streaks end to end, one blob
+    found = frame_blobs(torch.from_numpy(moving), config.detect)
+    streaks = [Prediction((x + 12.5, 20.0), 10.0, None, ((x + 5.0, 20.0), (x + 20.0, 20.0))) for x in (5, 35, 65)]
+    first, second, third = (Tracker(CAMERA, config) for _ in range(3))
+    last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
+    claims = [_Claim(first, 1, 0, streaks[0])]
+    claims.append(_shared(found, ((1, 0), last, streaks[1]), claims, second, config))
+    shared = _shared(found, ((1, 0), last, streaks[2]), claims, third, config)
+    assert shared is not None
+    claims.append(shared)
+    parts = [c.part for c in claims]
+    assert all(p is not None for p in parts)
+    owners = np.stack(parts).sum(0)
+    assert (owners[moving] == 1).all() and (owners[~moving] == 0).all()  # every pixel once
+    for part, streak in zip(parts, streaks, strict=True):  # each around its own streak
+        assert abs(np.nonzero(part)[1].mean() - streak.centre[0]) <= 2
+    assert [len(c.shared_with) for c in claims] == [2, 2, 2]
+    # A blob shared out in its region (a look back keeps only that) as in the whole frame.
+    window = (slice(10, 30), slice(0, 100))
+    assert all(
+        (a == b[window]).all()
+        for a, b in zip(share_out(moving[window], streaks, 1, (0, 10)), found.split(1, streaks, 1), strict=True)
+    )
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_region_kept_of_a_blob_holds_every_crop_of_a_part_of_it(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    config = load_config("fast").crop
+    size = (320, 240)
+    for _ in range(300):
+        w, h = (int(v) for v in rng.integers(1, 120, 2))
+        x, y = int(rng.integers(0, size[0] - w + 1)), int(rng.integers(0, size[1] - h + 1))
+        rx, ry, rw, rh = held_region((x, y, w, h), size, config)
+        assert rx >= 0 and ry >= 0 and rx + rw <= size[0] and ry + rh <= size[1]
+        pw, ph = (int(v) for v in rng.integers(1, (w + 1, h + 1)))
+        px, py = x + int(rng.integers(0, w - pw + 1)), y + int(rng.integers(0, h - ph + 1))
+        for margin in (config.margin, config.defmo_margin):
+            cx, cy, cw, ch = crop_box((px, py, pw, ph), size, dataclasses.replace(config, margin=margin))
+            assert rx <= cx and ry <= cy and cx + cw <= rx + rw and cy + ch <= ry + rh, ((x, y, w, h), (px, py, pw, ph))
+
+
+def test_statuses_found_looking_back_take_their_places_in_frame_and_track_order() -> None:
+    statuses = [
+        FrameStatus(0, "fitted", (0, 0, 9, 9), "", 1),
+        FrameStatus(0, "fitted", (20, 0, 9, 9), "", 2),
+        FrameStatus(1, "no_object"),
+        FrameStatus(2, "fitted", (0, 0, 9, 9), "", 2),
+    ]
+    changed = [
+        FrameStatus(0, "fitted", (20, 0, 5, 9), "", 2, True),
+        FrameStatus(0, "fitted", (25, 0, 4, 9), "", 3, True),
+    ]
+    assert _restated(statuses, changed) == [statuses[0], *changed, *statuses[2:]]
+    assert _restated(statuses, []) is statuses
