@@ -124,6 +124,40 @@ def final_results(folder: Path) -> dict[tuple[int, int], FrameResult]:
     return {k: with_joint(r, windows[owner[k]]) if k in owner else r for k, r in results.items()}
 
 
+def shared_boxes(
+    parts: dict[tuple[int, int], tuple[int, int, int, int]],
+) -> dict[tuple[int, int], tuple[int, int, int, int]]:
+    """Per (frame, track) whose streak touched others' (its box a ``part`` of their shared blob),
+    the box of the whole blob: the union of the parts' boxes of that frame that touch it, in
+    turn. A part can be a sliver where two streaks lie one over the other; the window's crop
+    around it would cut off the object's streak (the others' are left out, :func:`others_region`)."""
+    out = {}
+    for (index, track), box in parts.items():
+        union = box
+        grown = True
+        while grown:
+            grown = False
+            for (i, _), other in parts.items():
+                if i == index and _touch(union, other) and _union(union, other) != union:
+                    union, grown = _union(union, other), True
+        out[index, track] = union
+    return out
+
+
+def _touch(a: tuple[int, int, int, int], b: tuple[int, int, int, int], gap: int = 2) -> bool:
+    return (
+        a[0] <= b[0] + b[2] + gap
+        and b[0] <= a[0] + a[2] + gap
+        and a[1] <= b[1] + b[3] + gap
+        and b[1] <= a[1] + a[3] + gap
+    )
+
+
+def _union(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> tuple[int, int, int, int]:
+    x0, y0 = min(a[0], b[0]), min(a[1], b[1])
+    return x0, y0, max(a[0] + a[2], b[0] + b[2]) - x0, max(a[1] + a[3], b[1] + b[3]) - y0
+
+
 def window_frame(
     frame: FrameWithBackground,
     box: tuple[int, int, int, int],
@@ -266,6 +300,7 @@ def fit_windows(
     pending = [w for w in windows if window_key(w) not in done]
     boxes = {(s.index, s.track): s.box for s in statuses if s.status == "fitted"}
     touched = {(s.index, s.track) for s in statuses if s.status == "fitted" and s.touched}
+    boxes |= shared_boxes({k: b for k, b in boxes.items() if k in touched and b is not None})
     fitted: dict[int, list[int]] = {}  # frame index -> its fitted tracks
     for index, track in boxes:
         if track is not None:
