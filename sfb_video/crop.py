@@ -121,6 +121,19 @@ def crop_box(box: Box, frame_size: tuple[int, int], config: CropConfig) -> Box:
     return x0, y0, w, h
 
 
+def masks_onto(masks: torch.Tensor, box: Box, crop: Crop) -> torch.Tensor:
+    """(N, h, w) masks made on the crop of ``box`` (at that crop's working size) drawn on
+    ``crop`` at its working size instead; 0 where ``box`` does not reach."""
+    bx, by, bw, bh = box
+    native = F.interpolate(masks[None], size=(bh, bw), mode="bilinear", align_corners=False)[0]
+    cx, cy, cw, ch = crop.box
+    on_crop = masks.new_zeros((masks.shape[0], ch, cw))
+    x0, x1, y0, y1 = max(bx, cx), min(bx + bw, cx + cw), max(by, cy), min(by + bh, cy + ch)
+    if x1 > x0 and y1 > y0:
+        on_crop[:, y0 - cy : y1 - cy, x0 - cx : x1 - cx] = native[:, y0 - by : y1 - by, x0 - bx : x1 - bx]
+    return _resize(on_crop, (crop.image.shape[2], crop.image.shape[1])).clamp(0, 1)
+
+
 def _resize(image: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     if image.shape[-2:] == (size[1], size[0]):
         return image

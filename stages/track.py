@@ -11,7 +11,7 @@ make consecutive frames meet end to start, and that order between frames wins ov
 
 Where several objects' streaks touch, their blob is shared out among their tracks by nearness
 to their predicted streaks; an object whose streak lay inside another's blob before it had a
-track of its own is found there when its track, two frames on, looks back.
+track of its own is found there when its track, fitted in enough frames to be kept, looks back.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ import torch
 from sfb_video.atomic import atomic_write_bytes
 from sfb_video.config import Config, CropConfig
 from sfb_video.crop import Box, crop_box, mask_box
+from sfb_video.defmo import INPUT_SIZE
 from sfb_video.errors import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion
@@ -492,8 +493,8 @@ def track_and_fit(
     one blob before the others, a track of one frame after longer ones); the blobs left that
     are objects of their own (:data:`OTHER_SHARE`,
     :meth:`~sfb_video.stages.detect.FrameBlobs.own_object`) start new tracks, largest first.
-    A track fitted in its second frame looks back for its object inside other tracks' blobs
-    of the frames before its first (:func:`_look_back`). ``masks`` gives each fit its sub-frame
+    A track fitted in enough frames to be kept looks back for its object inside other tracks'
+    blobs of the frames before its first (:func:`_look_back`). ``masks`` gives each fit its sub-frame
     masks (None: the difference mask).
 
     Returns:
@@ -502,7 +503,7 @@ def track_and_fit(
     """
     saved = saved_frames(folder)
     statuses: list[FrameStatus] = []
-    held: deque[list[_Held]] = deque(maxlen=LOOK_BACK + 2)
+    held: deque[list[_Held]] = deque(maxlen=LOOK_BACK + _proven(config) + 1)
     numbers = TrackNumbers()
     live: list[Tracker] = []
     limit = config.video.max_objects or math.inf
@@ -560,7 +561,7 @@ def track_and_fit(
         owner = {c.label: c.tracker for c in objects}
         results: list[FrameStatus] = []
         fits: list[tuple[_Claim, _HeldFit]] = []
-        second_frames: list[Tracker] = []
+        proven: list[Tracker] = []
         for claim in objects:
             tracker, label = claim.tracker, claim.label
             detection = found.detection(frame.index, label, claim.others, claim.part)
@@ -592,8 +593,8 @@ def track_and_fit(
                     live.append(tracker)
                 results.append(FrameStatus(frame.index, "fitted", detection.box, note, track, shared))
                 fits.append((claim, _HeldFit(tracker, track, claim.prediction, claim.part, start, before)))
-                if not shared and tracker.length == 2:
-                    second_frames.append(tracker)
+                if not shared and tracker.length == _proven(config):
+                    proven.append(tracker)
                 report_result = result
             if report is not None:
                 report(results[-1], report_result)
@@ -610,7 +611,7 @@ def track_and_fit(
         statuses += sorted(results, key=lambda r: -1 if r.track is None else r.track)
         if limit > 1:  # one track at a time: none starts beside another to look back
             held.append(_held_blobs(frame, found, fits, config))
-        for tracker in second_frames:
+        for tracker in proven:
             looked = _look_back(tracker, list(held), folder, saved, camera, config, device, masks)
             statuses = _restated(statuses, looked)
     return short_tracks_dropped(statuses, config.video.min_track_frames)
@@ -665,8 +666,9 @@ tracks took (:func:`_look_back`): the slow-beside scenario's pen (``benchmarks.m
 starts inside the second object's blob and comes out of it two frames later."""
 
 LOOK_BACK_SHARE = 0.5
-"""Looking back, a track's share of another track's blob must be at least this share of its
-own first blob's area: the object is there, not the other's fringe nearest its path."""
+"""Looking back, a track's share of another track's blob, and how much that blob is larger than
+the other's blob of the next frame, must each be at least this share of its own first blob's
+area: the object is there, not the other's fringe nearest its path."""
 
 
 @dataclass
@@ -719,13 +721,15 @@ class _Held:
 
 def held_region(box: Box, frame_size: tuple[int, int], config: CropConfig) -> Box:
     """The part of a (W, H) frame that holds the crop (:func:`~sfb_video.crop.crop_box`) and the
-    DeFMO window of every box inside ``box``: a box inside is no larger, and its centre lies in
-    ``box``, so its crop is no larger than ``box``'s (unclipped by the frame) and reaches at most
-    half that past ``box``; at the frame's edge both shift inwards alike."""
+    DeFMO window (4:3 whatever the crop's aspect) of every box inside ``box``: a box inside is no
+    larger, and its centre lies in ``box``, so its crop is no larger than ``box``'s (unclipped by
+    the frame) and reaches at most half that past ``box``; at the frame's edge both shift
+    inwards alike."""
     x, y, w, h = box
     width, height = frame_size
-    widest = dataclasses.replace(config, margin=max(config.margin, config.defmo_margin))
-    _, _, cw, ch = crop_box(box, (1 << 30, 1 << 30), widest)
+    defmo = dataclasses.replace(config, margin=config.defmo_margin, aspect=INPUT_SIZE[1] / INPUT_SIZE[0])
+    unclipped = [crop_box(box, (1 << 30, 1 << 30), c)[2:] for c in (config, defmo)]
+    cw, ch = (max(sizes) for sizes in zip(*unclipped, strict=True))
     rw, rh = min(w + cw + 2, width), min(h + ch + 2, height)  # 2: the crop's rounding
     x0 = math.floor(min(max(x + w / 2 - rw / 2, 0), width - rw))
     y0 = math.floor(min(max(y + h / 2 - rh / 2, 0), height - rh))
@@ -764,27 +768,29 @@ def _look_back(
     device: torch.device,
     masks: MaskSource | None,
 ) -> list[FrameStatus]:
-    """A track just fitted in its second frame looks back for its object in the :data:`LOOK_BACK`
-    frames before its first, inside blobs that other tracks, still going, took whole (its object
-    had no track yet to share them with): where its streak, moved back at the pace of its first
-    two in the image, takes enough of such a blob (:data:`LOOK_BACK_SHARE`), the blob is shared
-    out, each track's part refitted (its first fit kept apart, :func:`followed_path`, for a
+    """A track just fitted in enough frames to be kept (:func:`_proven`) looks back for its object
+    in the :data:`LOOK_BACK` frames before its first, inside blobs that other tracks, still going,
+    took whole (its object had no track yet to share them with): where its streak, moved back at
+    its pace in the image, takes enough of such a blob, and the blob is larger by as much than its
+    tracks' own of the next frame (:data:`LOOK_BACK_SHARE`), the blob is shared out, each track's
+    part refitted (its first fit kept apart, :func:`followed_path`, for a
     resumed run to follow the tracks as this one did), and the track's fit there joins it
     (warm from its next frame, the time run backwards).
 
     Returns:
         the statuses of the frames looked into that changed: the other tracks' and this one's.
     """
-    first, second = tracker.earlier, tracker.previous
-    assert first is not None and second is not None and tracker.number is not None
+    last = tracker.previous
+    assert last is not None and tracker.number is not None
     by_index = {blobs[0].index: blobs for blobs in held if blobs}
-    mine = [(h, f) for h in by_index.get(first.index, []) for f in h.fits if f.tracker is tracker]
-    if not mine:
+    mine = sorted((h.index, _area(h, f)) for hs in held for h in hs for f in h.fits if f.tracker is tracker)
+    if not mine or mine[0][0] == last.index:
         return []
-    own_area = float((mine[0][0].blob if mine[0][1].part is None else mine[0][1].part).sum())
+    first = _followed(folder, (mine[0][0], tracker.number))
+    own_area = mine[0][1]
     later, restated = first, []
     for index in range(first.index - 1, first.index - 1 - LOOK_BACK, -1):
-        prediction = _glided_back(first, second, index, camera)
+        prediction = _glided_back(first, last, index, camera)
         best: tuple[float, _Held, list[np.ndarray]] | None = None
         for blob in by_index.get(index, []):
             if not any(_goes_on(f, first.index) for f in blob.fits):
@@ -796,7 +802,11 @@ def _look_back(
                 continue
             parts = share_out(blob.blob, [*ahead, prediction], config.detect.min_area_px, blob.region[:2])
             share = 0.0 if parts is None else float(parts[-1].sum())
-            if parts is not None and share >= LOOK_BACK_SHARE * own_area and (best is None or share > best[0]):
+            # The blob is larger than its tracks' own blobs of the next frame by about this
+            # object: not one object's blob that another track's path happens to pass.
+            grown = float(blob.blob.sum()) - _areas_after(blob, by_index.get(index + 1, []))
+            enough = LOOK_BACK_SHARE * own_area
+            if parts is not None and min(share, grown) >= enough and (best is None or share > best[0]):
                 best = (share, blob, parts)
         if best is None:
             break
@@ -828,6 +838,30 @@ def _look_back(
         tracker.length += 1
         later = results[-1]
     return restated
+
+
+def _proven(config: Config) -> int:
+    """The frames a track is fitted in before it looks back (:func:`_look_back`): as many as a
+    track needs to be kept (``video.min_track_frames``), at least two (its time direction
+    known). A shred that would be dropped does not look back and split another's blob."""
+    return max(2, config.video.min_track_frames)
+
+
+def _area(blob: _Held, fit: _HeldFit) -> float:
+    """The pixels of ``blob`` that are ``fit``'s (its part, where the blob was shared)."""
+    return float((blob.blob if fit.part is None else fit.part).sum())
+
+
+def _areas_after(blob: _Held, following: list[_Held]) -> float:
+    """The pixels of the blobs of the next frame that ``blob``'s tracks took there; infinite
+    where one of them has none (nothing tells how large its object is)."""
+    total = 0.0
+    for fit in blob.fits:
+        areas = [_area(h, f) for h in following for f in h.fits if f.tracker is fit.tracker and f.number == fit.number]
+        if not areas:
+            return math.inf
+        total += areas[0]
+    return total
 
 
 def _refitted(
@@ -868,10 +902,10 @@ def _glided_back(first: FrameResult, second: FrameResult, index: int, camera: Pi
 def _first_prediction(index: int, fit: _HeldFit, folder: Path, camera: PinholeCamera) -> Prediction | None:
     """Where a track's first frame ``index`` (``fit``, found with no prediction) should be by the
     track's next two saved frames, or None without them."""
-    paths = [frame_path(folder, index + k, fit.number) for k in (1, 2)]
-    if not all(path.is_file() for path in paths):
+    keys = [(index + k, fit.number) for k in (1, 2)]
+    if not all(frame_path(folder, *key).is_file() for key in keys):
         return None
-    return _glided_back(load_result(paths[0]), load_result(paths[1]), index, camera)
+    return _glided_back(_followed(folder, keys[0]), _followed(folder, keys[1]), index, camera)
 
 
 def _followed(folder: Path, key: tuple[int, int]) -> FrameResult:
@@ -895,10 +929,10 @@ def _joined(
     options = (result, result.reversed())
     if start is not None:
         return min(options, key=lambda r: join_gap(start, r, camera, e))
-    after = frame_path(folder, result.index + 1, result.track)
-    if not after.is_file():
+    after = (result.index + 1, result.track)
+    if not frame_path(folder, *after).is_file():
         return result
-    following = load_result(after)
+    following = _followed(folder, after)
     return min(options, key=lambda r: join_gap(r, following, camera, e))
 
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import torch
 
 from sfb_video.config import Config
-from sfb_video.crop import make_crop
+from sfb_video.crop import make_crop, masks_onto
 from sfb_video.errors import DivergenceError
 from sfb_video.fitting.path import Seed
 from sfb_video.fitting.window import WindowFrame, fit_window, refine_frames
@@ -167,13 +167,15 @@ def window_frame(
     device: torch.device,
 ) -> WindowFrame:
     """The frame's crop around its detection ``box`` as its single-frame fit made it (the box's
-    pixels stand for the detected blob), with the fit's sub-frame masks."""
+    pixels stand for the detected blob), with the fit's sub-frame masks drawn on it."""
     x, y, w, h = box
     blob = torch.zeros(frame.pixels.shape[1:], dtype=torch.bool)
     blob[y : y + h, x : x + w] = True
     pixels, background = frame.pixels.to(device), frame.background_pixels.to(device)
     crop = make_crop(pixels, background, box, camera, config.crop, blob.to(device))
     masks = None if result.masks is None else result.masks.to(device)
+    if masks is not None and crop.box != result.crop_box:  # a touched frame's whole blob (shared_boxes)
+        masks = masks_onto(masks, result.crop_box, crop)
     return WindowFrame(frame.index, crop, masks)
 
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import torch
 
 from sfb_video.config import CropConfig
-from sfb_video.crop import object_region
+from sfb_video.crop import make_crop, masks_onto, object_region
+from sfb_video.geometry.camera import PinholeCamera
 
 
 def _faint_streak(seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -44,3 +45,26 @@ def test_noise_zero_keeps_the_threshold_alone() -> None:
     threshold = CropConfig().region_threshold
     expected = (image - background).abs().sum(0) > threshold
     assert torch.equal(object_region(image, background, threshold, 0.0), expected)
+
+
+def test_masks_made_on_one_crop_are_drawn_where_the_same_pixels_are_on_another() -> None:
+    # A touched frame's window crop covers the whole shared blob, not the part its single-frame
+    # fit's crop (and its DeFMO masks) was made around.
+    camera = PinholeCamera.from_fov(320, 240, 45.0)
+    config = CropConfig(max_width=60)
+    image = torch.full((3, 240, 320), 0.5)
+    image[:, 100:110, 150:170] = 0.9  # the object: 20 x 10 px
+    small = make_crop(image, torch.full_like(image, 0.5), (150, 100, 20, 10), camera, config)
+    large = make_crop(image, torch.full_like(image, 0.5), (120, 80, 90, 60), camera, config)
+    masks = torch.stack((small.object_mask, 1 - small.object_mask))
+    moved = masks_onto(masks, small.box, large)
+    assert moved.shape == (2, *large.image.shape[1:])
+    # The object's mask lands on the object's pixels of the larger crop, within a pixel.
+    ys, xs = torch.nonzero(moved[0] > 0.5, as_tuple=True)
+    want_ys, want_xs = torch.nonzero(large.object_mask > 0.5, as_tuple=True)
+    assert abs(float(xs.float().mean() - want_xs.float().mean())) <= 1.0
+    assert abs(float(ys.float().mean() - want_ys.float().mean())) <= 1.0
+    # Outside the small crop's box the masks are 0.
+    scale = large.image.shape[2] / large.box[2]
+    left = round((small.box[0] - large.box[0]) * scale) - 1
+    assert float(moved[:, :, :left].abs().max()) == 0.0

@@ -99,7 +99,7 @@ def test_three_movers_touching_in_turn_keep_their_tracks(tmp_path: Path, monkeyp
     # a track of one, dropped). The slow box's one-frame track, its direction unknown, went on
     # through the others' blobs and took the pen's in frame 3. In frame 5 the pen's streak
     # touches the blob the other two already share. In frames 0-1 it lies inside the second's
-    # blob, before it has a track: its track, fitted in frames 2-3, looks back for it there.
+    # blob, before it has a track: its track, fitted in frames 2-4, looks back for it there.
     clip, truths, statuses = _tracked("three, a slow one beside", _config(), tmp_path)
     # A track's box is its nearest object's when centred within 20 px of it (shared-out parts
     # are small, so box overlap would miss them), but not where two objects are centred within 10
@@ -125,10 +125,11 @@ def test_three_movers_touching_in_turn_keep_their_tracks(tmp_path: Path, monkeyp
     # a resumed run follows the second object from its first fits there, as this one did.
     config = _config()
     frames = with_backgrounds(tmp_path / "clip.mp4", config.video, clip.frames.shape[0])
-    calls = sum(1 for s in statuses if s.status in ("fitted", "dropped") and s.index <= 3) + 2
+    # Frames 0-4's fits and the second object's two refits: it stops at frame 5's first fit.
+    calls = sum(1 for s in statuses if s.status in ("fitted", "dropped") and s.index <= 4) + 2
     real_fit = sfb_video.stages.track.fit_detection
 
-    def stop_in_frame_four(*args: object, **kwargs: object) -> object:
+    def stop_in_frame_five(*args: object, **kwargs: object) -> object:
         nonlocal calls
         calls -= 1
         if calls < 0:
@@ -137,7 +138,7 @@ def test_three_movers_touching_in_turn_keep_their_tracks(tmp_path: Path, monkeyp
 
     (tmp_path / "resumed").mkdir()
     with monkeypatch.context() as patch:
-        patch.setattr(sfb_video.stages.track, "fit_detection", stop_in_frame_four)
+        patch.setattr(sfb_video.stages.track, "fit_detection", stop_in_frame_five)
         with pytest.raises(KeyboardInterrupt):
             track_and_fit(frames, tmp_path / "resumed", clip.camera, config, CPU)
     assert (tmp_path / "resumed" / "frames" / "followed").is_dir()  # the look back was done

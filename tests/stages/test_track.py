@@ -10,24 +10,32 @@ import numpy as np
 import pytest
 import torch
 
+import sfb_video.stages.track
 from benchmarks import detect as detect_benchmark
 from sfb_video.config import load_config
 from sfb_video.crop import crop_box
+from sfb_video.errors import NoObjectError
 from sfb_video.evaluation.objects import box_iou
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
-from sfb_video.results import FrameResult
+from sfb_video.results import FrameResult, save_result
 from sfb_video.run_folder import saved_frames
 from sfb_video.stages.background import running_median
 from sfb_video.stages.detect import frame_blobs, share_out
 from sfb_video.stages.fit import continued
 from sfb_video.stages.track import (
     Tracker,
+    TrackNumbers,
     _choosing_order,
     _Claim,
+    _glided_back,
+    _Held,
+    _HeldFit,
+    _look_back,
     _new_objects,
+    _proven,
     _restated,
     _shared,
     follow,
@@ -41,6 +49,7 @@ from sfb_video.stages.types import Frame, FrameStatus, FrameWithBackground, Pred
 from sfb_video.synth import generate_clip
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
+CPU = torch.device("cpu")
 
 
 def _frames(count: int) -> list[FrameWithBackground]:
@@ -253,10 +262,10 @@ def test_a_blob_three_streaks_touch_in_is_shared_out_among_all_three() -> None:
     )
 
 
-@pytest.mark.parametrize("seed", range(3))
-def test_the_region_kept_of_a_blob_holds_every_crop_of_a_part_of_it(seed: int) -> None:
+@pytest.mark.parametrize(("seed", "aspect"), [(0, 4 / 3), (1, 4 / 3), (2, 1.0), (3, 2.0)])
+def test_the_region_kept_of_a_blob_holds_every_crop_of_a_part_of_it(seed: int, aspect: float) -> None:
     rng = np.random.default_rng(seed)
-    config = load_config("fast").crop
+    config = dataclasses.replace(load_config("fast").crop, aspect=aspect)
     size = (320, 240)
     for _ in range(300):
         w, h = (int(v) for v in rng.integers(1, 120, 2))
@@ -265,8 +274,9 @@ def test_the_region_kept_of_a_blob_holds_every_crop_of_a_part_of_it(seed: int) -
         assert rx >= 0 and ry >= 0 and rx + rw <= size[0] and ry + rh <= size[1]
         pw, ph = (int(v) for v in rng.integers(1, (w + 1, h + 1)))
         px, py = x + int(rng.integers(0, w - pw + 1)), y + int(rng.integers(0, h - ph + 1))
-        for margin in (config.margin, config.defmo_margin):
-            cx, cy, cw, ch = crop_box((px, py, pw, ph), size, dataclasses.replace(config, margin=margin))
+        # The fit's crop, and DeFMO's 4:3 window (sfb_video.defmo.defmo_masks).
+        for crop in (config, dataclasses.replace(config, margin=config.defmo_margin, aspect=4 / 3)):
+            cx, cy, cw, ch = crop_box((px, py, pw, ph), size, crop)
             assert rx <= cx and ry <= cy and cx + cw <= rx + rw and cy + ch <= ry + rh, ((x, y, w, h), (px, py, pw, ph))
 
 
@@ -283,3 +293,62 @@ def test_statuses_found_looking_back_take_their_places_in_frame_and_track_order(
     ]
     assert _restated(statuses, changed) == [statuses[0], *changed, *statuses[2:]]
     assert _restated(statuses, []) is statuses
+
+
+def _disc_blob(shape: tuple[int, int], centres: list[tuple[float, float]], radius: float) -> np.ndarray:
+    v, u = np.mgrid[: shape[0], : shape[1]]
+    return np.any([(u - x) ** 2 + (v - y) ** 2 <= radius**2 for x, y in centres], axis=0)
+
+
+def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A shred or a second track of one object, moving beside a tracked object, slid back onto
+    # that object's whole blob and split it: only a blob larger than its track's own of the next
+    # frame, by about the looking track's object, holds that object too.
+    config = load_config("fast")
+    assert _proven(config) == 3 and _proven(load_config("fast", ["video.min_track_frames=1"])) == 2
+    numbers = TrackNumbers()
+    owner, late = Tracker(CAMERA, config, numbers), Tracker(CAMERA, config, numbers)
+    owner.number, late.number = 0, 1
+    first = dataclasses.replace(_fitted(2, (0.0, 0.0, 8.0), (0.1, 0.0, 0.0)), track=1)
+    last = dataclasses.replace(_fitted(4, (0.6, 0.0, 8.0), (0.1, 0.0, 0.0)), track=1)
+    for result in (first, last):
+        save_result(tmp_path, result)
+    late.previous, late.length = last, 3
+    owner.previous, owner.length = dataclasses.replace(_fitted(4, (0.0, 1.0, 8.0), (0.0, 0.1, 0.0)), track=0), 5
+    shape = (240, 320)
+    back = _glided_back(first, last, 1, CAMERA)
+    aside = (back.centre[0], back.centre[1] + 30.0)
+    mine = _disc_blob(shape, [predict(first.state.motion, CAMERA).centre], 8.0)
+    empty = torch.zeros((3, *shape))
+
+    def held(index: int, blob: np.ndarray, fits: list[_HeldFit]) -> list[_Held]:
+        return [_Held(index, shape, (0, 0, shape[1], shape[0]), empty, empty, blob, fits)]
+
+    def owner_fit(at: tuple[float, float]) -> _HeldFit:
+        ahead = Prediction(at, 36.0, None, ((at[0] - 5, at[1]), (at[0] + 5, at[1])))
+        return _HeldFit(owner, 0, ahead, None, None, None)
+
+    fitted: list[int] = []
+
+    def fit(frame: FrameWithBackground, *args: object) -> FrameResult:
+        fitted.append(frame.index)
+        raise NoObjectError("stop here")  # the look back gives up on the frame
+
+    monkeypatch.setattr(sfb_video.stages.track, "fit_detection", fit)
+    near = (back.centre[0] + 4.0, back.centre[1])
+    for discs, at, looked in (
+        ([back.centre], near, []),  # the owner's own object on the path: its blob no larger
+        ([aside, back.centre], aside, [1]),  # the owner's object beside, and this one on the path
+    ):
+        frames = [
+            held(1, _disc_blob(shape, discs, 12.0), [owner_fit(at)]),
+            held(2, _disc_blob(shape, [aside], 12.0), [owner_fit(aside)])
+            + held(2, mine, [_HeldFit(late, 1, None, None, None, None)]),
+            held(3, np.zeros(shape, bool), []),
+        ]
+        fitted.clear()
+        assert _look_back(late, frames, tmp_path, set(), CAMERA, config, CPU, None) == []
+        assert fitted == looked  # refitted (and given up) only where the blob grew by the object
+    assert late.length == 3 and not (tmp_path / "frames" / "followed").exists()
