@@ -22,7 +22,7 @@ import torch
 from sfb_video import __version__
 from sfb_video.config import load_config, save_config
 from sfb_video.devices import resolve_device
-from sfb_video.errors import OutputError, SfbError, printable
+from sfb_video.errors import ConfigError, OutputError, SfbError, printable
 from sfb_video.interrupts import sigint_outside_kernels
 from sfb_video.run_folder import CONFIG, open_export, open_run
 from sfb_video.stages.read import parse_frames
@@ -343,6 +343,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     from sfb_video.stages.process import export_run
 
     with open_export(Path(args.run)) as run:
+        try:
+            load_config(run.work / CONFIG)
+        except ConfigError as exc:
+            # A run folder made by another version: a key since deleted (video.background_tolerance).
+            where = printable(str(run.path / CONFIG))
+            raise ConfigError(f"{where}: {exc}; made by another version of sfb-video? process the clip again") from None
         config = load_config(run.work / CONFIG, args.set + (["camera.stabilised=true"] if args.stabilised else []))
         fitted = {index for index, _ in saved_frames(run.work)}
         missing = [f for f in args.novel_views or [] if f not in fitted]

@@ -354,3 +354,18 @@ def test_an_export_that_fails_leaves_the_run_as_it_was(
     assert main(["export", str(out), "--tsr", "2", "--quiet"]) == 0
     assert json.loads((out / "summary.json").read_text())["tsr"] == 2
     assert not sibling(out, NEW_SUFFIX).exists()
+
+
+def test_an_export_of_a_run_made_by_another_version_says_so(
+    finished: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # video.background_tolerance was deleted (2026-12-05); folders made before still carry it.
+    out = _copy(finished, tmp_path)
+    config = out / "config.yaml"
+    config.write_text(config.read_text().replace("video:\n", "video:\n  background_tolerance: 0.05\n", 1))
+    before = _contents(out)
+    assert main(["export", str(out), "--quiet"]) == 2
+    _one_line(capsys, "background_tolerance", "another version")
+    assert _contents(out) == before
+    assert main(["export", str(out), "--quiet", "--set", "video.nonsense=1"]) == 2  # the folder's fault first
+    _one_line(capsys, "another version")
