@@ -50,6 +50,13 @@ class Crop:
     streak: torch.Tensor
 
 
+def box_union(a: Box | np.ndarray, b: Box | np.ndarray) -> Box:
+    """The smallest box that holds boxes ``a`` and ``b`` (each (x, y, w, h), or an array that
+    starts so)."""
+    x0, y0 = min(a[0], b[0]), min(a[1], b[1])
+    return int(x0), int(y0), int(max(a[0] + a[2], b[0] + b[2]) - x0), int(max(a[1] + a[3], b[1] + b[3]) - y0)
+
+
 def mask_box(mask: np.ndarray) -> Box | None:
     """(x, y, w, h) of the True pixels of an (H, W) bool mask, None if there are none."""
     rows, cols = np.nonzero(mask.any(1))[0], np.nonzero(mask.any(0))[0]

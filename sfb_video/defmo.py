@@ -21,7 +21,7 @@ from kornia.feature import DeFMO
 from kornia.feature.defmo import urls
 
 from sfb_video.config import CropConfig
-from sfb_video.crop import Box, Crop, crop_box
+from sfb_video.crop import Box, Crop, crop_box, masks_onto
 from sfb_video.errors import SfbError
 
 INPUT_SIZE = (240, 320)
@@ -130,11 +130,4 @@ def defmo_masks(
     pair = F.interpolate(pair, size=INPUT_SIZE, mode="bilinear", antialias=True, align_corners=False)
     alpha = network(pair)[0, :, 3, : INPUT_SIZE[0], : INPUT_SIZE[1]]  # (24, 240, 320)
     grouped = torch.einsum("nk,khw->nhw", time_bins(alpha.shape[0], n).to(alpha), alpha)
-    window = F.interpolate(grouped[None], size=(wh, ww), mode="bilinear", align_corners=False)[0]
-    cx, cy, cw, ch = crop.box
-    on_crop = torch.zeros(n, ch, cw, device=window.device)
-    x0, x1, y0, y1 = max(wx, cx), min(wx + ww, cx + cw), max(wy, cy), min(wy + wh, cy + ch)
-    on_crop[:, y0 - cy : y1 - cy, x0 - cx : x1 - cx] = window[:, y0 - wy : y1 - wy, x0 - wx : x1 - wx]
-    size = crop.image.shape[1:]
-    masks = F.interpolate(on_crop[None], size=size, mode="bilinear", antialias=True, align_corners=False)[0]
-    return masks.clamp(0, 1).to(crop.image.device)
+    return masks_onto(grouped, (wx, wy, ww, wh), crop).to(crop.image.device)

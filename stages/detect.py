@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from sfb_video.config import DetectConfig
-from sfb_video.crop import mask_box
+from sfb_video.crop import box_union, mask_box
 from sfb_video.imageio import as_float
 from sfb_video.stages.types import Detection, Prediction
 from sfb_video.timing import timed
@@ -208,7 +208,7 @@ def blobs(mask: np.ndarray, merge_px: int, min_area: int) -> tuple[int, np.ndarr
                 ra, rb = parent[a], parent[b]
                 if ra != rb and _overlap(stats[ra], stats[rb]):
                     parent[parent == rb] = ra
-                    stats[ra, :4] = _union(stats[ra], stats[rb])
+                    stats[ra, :4] = box_union(stats[ra], stats[rb])
                     changed = True
     labels = parent[labels].astype(np.int32)
     stats, centroids = _blob_stats(mask, labels, count)
@@ -225,11 +225,6 @@ def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
     w = min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0])
     h = min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1])
     return w > 0 and h > 0 and w * h >= MERGE_OVERLAP * min(a[2] * a[3], b[2] * b[3])
-
-
-def _union(a: np.ndarray, b: np.ndarray) -> tuple[int, int, int, int]:
-    x0, y0 = min(a[0], b[0]), min(a[1], b[1])
-    return x0, y0, max(a[0] + a[2], b[0] + b[2]) - x0, max(a[1] + a[3], b[1] + b[3]) - y0
 
 
 def _blob_stats(mask: np.ndarray, labels: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:

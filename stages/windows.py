@@ -27,7 +27,7 @@ from pathlib import Path
 import torch
 
 from sfb_video.config import Config
-from sfb_video.crop import make_crop, masks_onto
+from sfb_video.crop import box_union, make_crop, masks_onto
 from sfb_video.errors import DivergenceError
 from sfb_video.fitting.path import Seed
 from sfb_video.fitting.window import WindowFrame, fit_window, refine_frames
@@ -138,8 +138,8 @@ def shared_boxes(
         while grown:
             grown = False
             for (i, _), other in parts.items():
-                if i == index and _touch(union, other) and _union(union, other) != union:
-                    union, grown = _union(union, other), True
+                if i == index and _touch(union, other) and box_union(union, other) != union:
+                    union, grown = box_union(union, other), True
         out[index, track] = union
     return out
 
@@ -151,11 +151,6 @@ def _touch(a: tuple[int, int, int, int], b: tuple[int, int, int, int], gap: int 
         and a[1] <= b[1] + b[3] + gap
         and b[1] <= a[1] + a[3] + gap
     )
-
-
-def _union(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> tuple[int, int, int, int]:
-    x0, y0 = min(a[0], b[0]), min(a[1], b[1])
-    return x0, y0, max(a[0] + a[2], b[0] + b[2]) - x0, max(a[1] + a[3], b[1] + b[3]) - y0
 
 
 def window_frame(
