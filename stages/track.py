@@ -383,21 +383,11 @@ class Tracker:
 
     def _glided(self, index: int) -> Prediction:
         """Frame ``index``'s prediction past frames without a clean fit: the last clean streak
-        moved on in the image at the pace of the last two. Over several frames this is surer than
-        the 3D motion continued, whose depth speed and turn, a little off, carry it far away."""
+        moved on in the image at the pace of the last two (:func:`glide`). Over several frames
+        this is surer than the 3D motion continued, whose depth speed and turn, a little off,
+        carry it far away."""
         assert self.previous is not None and self.earlier is not None
-        last, before = predict(self.previous.state.motion, self.camera), predict(self.earlier.state.motion, self.camera)
-        pace = [
-            (a - b) / (self.previous.index - self.earlier.index)
-            for a, b in zip(last.centre, before.centre, strict=True)
-        ]
-        steps = index - self.previous.index
-
-        def on(point: tuple[float, float]) -> tuple[float, float]:
-            return point[0] + steps * pace[0], point[1] + steps * pace[1]
-
-        ends = None if last.ends is None else (on(last.ends[0]), on(last.ends[1]))
-        return Prediction(on(last.centre), last.diameter, self.colour, ends)
+        return dataclasses.replace(glide(self.previous, self.earlier, index, self.camera), colour=self.colour)
 
     def coast(self) -> None:
         """Keep the track through this frame, where its object's streak merged into another
@@ -790,7 +780,7 @@ def _look_back(
     own_area = mine[0][1]
     later, restated = first, []
     for index in range(first.index - 1, first.index - 1 - LOOK_BACK, -1):
-        prediction = _glided_back(first, last, index, camera)
+        prediction = glide(first, last, index, camera)
         best: tuple[float, _Held, list[np.ndarray]] | None = None
         for blob in by_index.get(index, []):
             if not any(_goes_on(f, first.index) for f in blob.fits):
@@ -817,14 +807,15 @@ def _look_back(
         # This track's fit starts warm from its next frame, its time run backwards.
         mirrored = dataclasses.replace(later.reversed(), index=2 * index - later.index)
         starts = [f.start for f in blob.fits] + [mirrored]
+        detections = [blob.detection(part) for part in parts]
         try:
             results = [
-                _refitted(frame, blob.detection(part), fit, start, folder, camera, config, device, masks, found_late)
-                for fit, part, start in zip(fits, parts, starts, strict=True)
+                _refitted(frame, detection, fit, start, folder, camera, config, device, masks, found_late)
+                for fit, detection, start in zip(fits, detections, starts, strict=True)
             ]
         except NoObjectError:
             break
-        for fit, part, result in zip(fits, parts, results, strict=True):
+        for fit, part, detection, result in zip(fits, parts, detections, results, strict=True):
             first_fit = followed_path(folder, index, fit.number)
             if fit.tracker is not tracker and not first_fit.is_file():
                 ensure_folder(first_fit.parent)
@@ -833,7 +824,7 @@ def _look_back(
             fit.part = part
             others = ", ".join(str(f.number) for f in fits if f is not fit)
             note = f"its streak touched track(s) {others}'s: their pixels shared out by nearness, looking back"
-            restated.append(FrameStatus(index, "fitted", blob.detection(part).box, note, fit.number, True))
+            restated.append(FrameStatus(index, "fitted", detection.box, note, fit.number, True))
         blob.fits.append(fits[-1])
         tracker.length += 1
         later = results[-1]
@@ -885,18 +876,19 @@ def _refitted(
     return _joined(dataclasses.replace(result, track=fit.number), fit.start, folder, camera, config)
 
 
-def _glided_back(first: FrameResult, second: FrameResult, index: int, camera: PinholeCamera) -> Prediction:
-    """Frame ``index``'s prediction, before a track's ``first`` frame: its streak moved back in
-    the image at the pace from ``first`` to ``second`` (as :meth:`Tracker._glided` moves on)."""
-    start, end = predict(first.state.motion, camera), predict(second.state.motion, camera)
-    steps = (index - first.index) / (second.index - first.index)
-    du, dv = (steps * (b - a) for a, b in zip(start.centre, end.centre, strict=True))
+def glide(at: FrameResult, other: FrameResult, index: int, camera: PinholeCamera) -> Prediction:
+    """Frame ``index``'s prediction from frame ``at``'s streak, moved in the image at the pace
+    between ``other`` and ``at`` (frames of one track): on past a track's last clean frame, or
+    back before its first."""
+    moved, seen = predict(at.state.motion, camera), predict(other.state.motion, camera)
+    pace = [(a - b) / (at.index - other.index) for a, b in zip(moved.centre, seen.centre, strict=True)]
+    steps = index - at.index
 
-    def back(point: tuple[float, float]) -> tuple[float, float]:
-        return point[0] + du, point[1] + dv
+    def on(point: tuple[float, float]) -> tuple[float, float]:
+        return point[0] + steps * pace[0], point[1] + steps * pace[1]
 
-    ends = None if start.ends is None else (back(start.ends[0]), back(start.ends[1]))
-    return Prediction(back(start.centre), start.diameter, None, ends)
+    ends = None if moved.ends is None else (on(moved.ends[0]), on(moved.ends[1]))
+    return Prediction(on(moved.centre), moved.diameter, None, ends)
 
 
 def _first_prediction(index: int, fit: _HeldFit, folder: Path, camera: PinholeCamera) -> Prediction | None:
@@ -905,7 +897,7 @@ def _first_prediction(index: int, fit: _HeldFit, folder: Path, camera: PinholeCa
     keys = [(index + k, fit.number) for k in (1, 2)]
     if not all(frame_path(folder, *key).is_file() for key in keys):
         return None
-    return _glided_back(_followed(folder, keys[0]), _followed(folder, keys[1]), index, camera)
+    return glide(_followed(folder, keys[0]), _followed(folder, keys[1]), index, camera)
 
 
 def _followed(folder: Path, key: tuple[int, int]) -> FrameResult:
@@ -926,14 +918,13 @@ def _joined(
     """A refitted frame of a track in the track's time direction: joined to the frame it started
     from, or where it started cold (the track's first frame), to the track's next saved frame."""
     e = config.video.exposure_fraction
-    options = (result, result.reversed())
     if start is not None:
-        return min(options, key=lambda r: join_gap(start, r, camera, e))
+        return join(start, result, camera, e, may_flip_previous=False)[1]
     after = (result.index + 1, result.track)
     if not frame_path(folder, *after).is_file():
         return result
     following = _followed(folder, after)
-    return min(options, key=lambda r: join_gap(r, following, camera, e))
+    return min((result, result.reversed()), key=lambda r: join_gap(r, following, camera, e))
 
 
 def _restated(statuses: list[FrameStatus], changed: list[FrameStatus]) -> list[FrameStatus]:

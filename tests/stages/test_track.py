@@ -30,7 +30,6 @@ from sfb_video.stages.track import (
     TrackNumbers,
     _choosing_order,
     _Claim,
-    _glided_back,
     _Held,
     _HeldFit,
     _look_back,
@@ -39,6 +38,7 @@ from sfb_video.stages.track import (
     _restated,
     _shared,
     follow,
+    glide,
     held_region,
     predict,
     short_tracks_dropped,
@@ -318,7 +318,7 @@ def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(
     late.previous, late.length = last, 3
     owner.previous, owner.length = dataclasses.replace(_fitted(4, (0.0, 1.0, 8.0), (0.0, 0.1, 0.0)), track=0), 5
     shape = (240, 320)
-    back = _glided_back(first, last, 1, CAMERA)
+    back = glide(first, last, 1, CAMERA)
     aside = (back.centre[0], back.centre[1] + 30.0)
     mine = _disc_blob(shape, [predict(first.state.motion, CAMERA).centre], 8.0)
     empty = torch.zeros((3, *shape))
