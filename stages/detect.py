@@ -347,6 +347,8 @@ class FrameBlobs:
         pixels: the frame's (3, H, W) pixels and background as arrays, for the blobs' colours.
         changed: the frame's (H, W) bool difference mask (:func:`difference_mask`), slow movers
             not taken out, for :meth:`own_object`.
+        joined: (count,) for each label, the label of the blob it was split from
+            (:func:`side_by_side`), its own where it was not.
     """
 
     count: int
@@ -355,6 +357,7 @@ class FrameBlobs:
     centroids: np.ndarray
     pixels: tuple[np.ndarray, np.ndarray] | None = None
     changed: np.ndarray | None = None
+    joined: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self._quarters: dict[int, Quarter] = {}
@@ -373,7 +376,9 @@ class FrameBlobs:
                 self._changed_areas = regions, np.bincount(regions.ravel())
             regions, areas = self._changed_areas
             touched = np.unique(regions[self.labels == label])
-            if float(areas[touched[touched > 0]].sum()) > SHRED_RATIO * self.area(label):
+            # Objects side by side split from one blob lie in one changed region together.
+            siblings = [label] if self.joined is None else np.flatnonzero(self.joined == self.joined[label])
+            if float(areas[touched[touched > 0]].sum()) > SHRED_RATIO * sum(self.area(k) for k in siblings):
                 return False
         return not self.shade(label)
 
@@ -447,6 +452,116 @@ def share_out(
     return parts
 
 
+PARALLEL_DEG = 15.0
+"""Two strong cores whose axes differ by at most this many degrees are parallel (:func:`apart`).
+falling_three.mp4's side-by-side objects, frames 10 and 11: 1 to 9 degrees."""
+
+ALIGNED = 0.5
+"""Two parallel cores side by side whose extents along their axis share at least this share of
+the shorter one are one object's (the two sides of a ring's streak: 0.67 and 1.0 in the
+synthetic ring); less, two objects falling beside each other, one a little ahead (falling_three,
+frames 10 and 11: 0.2 to 0.4)."""
+
+CORE_SHARE = 0.25
+"""A strong core counts in :func:`side_by_side` from this share of the blob's largest core's area."""
+
+
+@dataclass(frozen=True)
+class Core:
+    """A connected run of a blob's strong pixels (above ``detect.threshold``).
+
+    Attributes:
+        pixels: (N, 2) its pixels' (x, y); centre: (2,) their mean; axis: (2,) unit, the
+            direction of their greatest spread; width: four standard deviations across it.
+    """
+
+    pixels: np.ndarray
+    centre: np.ndarray
+    axis: np.ndarray
+    width: float
+
+    @classmethod
+    def of(cls, pixels: np.ndarray) -> Core:
+        centre = pixels.mean(0)
+        spread, directions = np.linalg.eigh(np.cov((pixels - centre).T))
+        return cls(pixels, centre, directions[:, 1], 4 * math.sqrt(max(float(spread[0]), 0.0)))
+
+    def extent(self, axis: np.ndarray, origin: np.ndarray) -> tuple[float, float]:
+        along = (self.pixels - origin) @ axis
+        return float(along.min()), float(along.max())
+
+
+def apart(a: Core, b: Core) -> bool:
+    """Whether two strong cores of one blob are two objects' streaks: parallel
+    (:data:`PARALLEL_DEG`), beside each other (their centres more than half their mean width apart
+    across the longer one's axis: not a streak cut in a row by a fence's wire) and one ahead of the
+    other (their extents along it share less than :data:`ALIGNED` of the shorter: not a ring's
+    two sides)."""
+    if math.degrees(math.acos(min(1.0, abs(float(a.axis @ b.axis))))) > PARALLEL_DEG:
+        return False
+    ea, eb = a.extent(a.axis, a.centre), b.extent(a.axis, a.centre)
+    longer = a if ea[1] - ea[0] >= eb[1] - eb[0] else b
+    offset = b.centre - a.centre
+    across = abs(float(offset[0] * -longer.axis[1] + offset[1] * longer.axis[0]))
+    if across <= (a.width + b.width) / 4:
+        return False
+    ea, eb = a.extent(longer.axis, a.centre), b.extent(longer.axis, a.centre)
+    shared = min(ea[1], eb[1]) - max(ea[0], eb[0])
+    return shared < ALIGNED * min(ea[1] - ea[0], eb[1] - eb[0])
+
+
+def side_by_side(blob: np.ndarray, difference: np.ndarray, threshold: float, min_area: int) -> list[np.ndarray] | None:
+    """A (h, w) bool ``blob`` whose strong cores (``difference`` (h, w) above ``threshold``) are
+    the streaks of objects falling beside each other (:func:`apart`) shared out among them, each
+    pixel to the nearest core of its object: (h, w) bool parts, or None where the blob is one
+    object's (a part would be smaller than ``min_area``). The hysteresis joins such streaks by
+    their faint fringes: falling_three.mp4's three objects, 7 to 12 px apart, in frames 10-11."""
+    count, cores = cv2.connectedComponents((blob & (difference > threshold)).astype(np.uint8), connectivity=8)
+    sizes = np.bincount(cores.ravel(), minlength=count)
+    sizes[0] = 0
+    big = [k for k in range(1, count) if sizes[k] >= max(min_area, CORE_SHARE * sizes.max())]
+    if len(big) < 2:
+        return None
+    found = [Core.of(np.stack(np.nonzero(cores == k)[::-1], 1).astype(np.float64)) for k in big]
+    group = list(range(len(found)))
+    for i in range(len(found)):
+        for j in range(i + 1, len(found)):
+            if not apart(found[i], found[j]):
+                old, new = group[j], group[i]
+                group = [new if g == old else g for g in group]
+    objects = sorted(set(group))
+    if len(objects) < 2:
+        return None
+    distances = []
+    for g in objects:
+        seeds = np.isin(cores, [big[k] for k in range(len(found)) if group[k] == g])
+        distances.append(cv2.distanceTransform((~seeds).astype(np.uint8), cv2.DIST_L2, 3))
+    owner = np.argmin(np.stack(distances), axis=0)
+    parts = [blob & (owner == k) for k in range(len(objects))]
+    return None if min(int(p.sum()) for p in parts) < min_area else parts
+
+
+def _split_side_by_side(
+    labels: np.ndarray, stats: np.ndarray, frame: tuple[torch.Tensor, torch.Tensor], config: DetectConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``labels`` (H, W) of :func:`blobs` with each blob of objects side by side
+    (:func:`side_by_side`) split into one label an object, and for each label the blob it was
+    split from (:attr:`FrameBlobs.joined`)."""
+    joined = list(range(len(stats)))
+    labels = labels.copy()
+    for label in range(1, len(stats)):
+        x, y, w, h, area = (int(v) for v in stats[label])
+        if area < 2 * config.min_area_px:
+            continue
+        window = (slice(y, y + h), slice(x, x + w))
+        difference = difference_image(frame[0][(slice(None), *window)], frame[1][(slice(None), *window)])
+        parts = side_by_side(labels[window] == label, difference, config.threshold, config.min_area_px)
+        for part in (parts or [])[1:]:
+            labels[window][part] = len(joined)
+            joined.append(label)
+    return labels, np.array(joined)
+
+
 def frame_blobs(
     moving: torch.Tensor,
     config: DetectConfig,
@@ -454,12 +569,19 @@ def frame_blobs(
     changed: torch.Tensor | None = None,
 ) -> FrameBlobs:
     """The blobs of a frame's ``moving`` mask (:func:`moving_mask`), with the frame's pixels and
-    background (3, H, W) each when given, for their colours, and its ``changed`` (H, W)
-    difference mask, for :meth:`FrameBlobs.own_object`."""
-    count, labels, stats, centroids = blobs(moving.cpu().numpy().astype(bool), config.merge_px, config.min_area_px)
+    background (3, H, W) each when given, for their colours and to split the blobs of objects
+    side by side (:func:`side_by_side`), and its ``changed`` (H, W) difference mask, for
+    :meth:`FrameBlobs.own_object`."""
+    mask = moving.cpu().numpy().astype(bool)
+    count, labels, stats, centroids = blobs(mask, config.merge_px, config.min_area_px)
+    joined = None
+    if frame is not None:
+        labels, joined = _split_side_by_side(labels, stats, frame, config)
+        count = len(joined)
+        stats, centroids = _blob_stats(mask, labels, count)
     pixels = None if frame is None else (frame[0].cpu().numpy(), frame[1].cpu().numpy())
     whole = None if changed is None else changed.cpu().numpy().astype(bool)
-    return FrameBlobs(count, labels, stats, centroids, pixels, whole)
+    return FrameBlobs(count, labels, stats, centroids, pixels, whole, joined)
 
 
 def pick_blob(

@@ -223,20 +223,25 @@ def _miss(found: FrameBlobs, label: int, prediction: Prediction) -> float:
 
 
 def _choosing_order(
-    found: FrameBlobs, wants: list[tuple[Tracker, tuple[tuple[int, int], FrameResult, Prediction] | None]]
+    found: FrameBlobs,
+    wants: list[tuple[Tracker, tuple[tuple[int, int], FrameResult, Prediction] | None]],
+    elsewhere: list[bool] | None = None,
 ) -> list[int]:
     """The order in which tracks choose their blobs (indices into ``wants``: each track and the
     blob it would take, :func:`follow`): longer tracks first, their predictions being the
     surest, but of tracks that would take the same blob, the one whose prediction lands nearest
     it (in its object's diameters) first, at the place of the longest of them, unless it is a
-    track of one frame beside longer ones; the others of them keep their own places.
+    track of one frame beside a longer one that would find no other blob (``elsewhere``, for
+    each track: whether it would, None: none would); the others of them keep their own places.
 
     Two objects following one path: the lead's streak came out a shred, and the lead's track,
     the longer by a frame, took the trailing object's blob, which its size outweighed the shred
     by, though the trail's own prediction lay on it; the tracks swapped objects there. A track of
     one frame, though, only guesses which way it goes: falling_pen.avi's pen streak came in two
     pieces, the second started a track, and its guess, nearer the next frame's blob, took it
-    from the pen's.
+    from the pen's, which had no other. But falling_three.mp4's objects side by side, frame 11:
+    the pale end's track of one frame lay on its blob, the red end's track, whose guess had
+    drifted, would have taken it though the red end's own blob lay in its gate too.
     """
 
     miss = [math.inf if w is None else _miss(found, w[0][0], w[2]) / max(w[2].diameter, 1.0) for _, w in wants]
@@ -246,8 +251,12 @@ def _choosing_order(
     nearest: dict[int, int] = {}
 
     def surer(k: int, than: int) -> bool:
-        # A track of one frame guesses its direction: it comes after longer ones.
-        return (wants[k][0].length < 2, miss[k]) < (wants[than][0].length < 2, miss[than])
+        guessing = [wants[i][0].length < 2 for i in (k, than)]
+        if guessing[0] != guessing[1] and not (elsewhere or [False] * len(wants))[than if guessing[0] else k]:
+            # A track of one frame guesses its direction: it comes after a longer one that
+            # would lose its object.
+            return guessing[1]
+        return miss[k] < miss[than]
 
     for k, (tracker, _) in enumerate(wants):
         longest[group[k]] = max(longest.get(group[k], 0), tracker.length)
@@ -515,7 +524,11 @@ def track_and_fit(
         merged: list[tuple[Tracker, int]] = []
         asked = [(t, t.predictions(frame.index)) for t in live]
         wants = [(t, follow(found, p, config)) for t, p in asked]
-        for k in _choosing_order(found, wants):
+        elsewhere = [
+            w is not None and follow(found, p, config, frozenset({w[0][0]})) is not None
+            for (_, p), (_, w) in zip(asked, wants, strict=True)
+        ]
+        for k in _choosing_order(found, wants, elsewhere):
             (tracker, predictions), followed = asked[k], wants[k][1]
             claim = None
             if followed is not None and followed[0][0] in taken:

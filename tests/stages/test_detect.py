@@ -5,7 +5,15 @@ from __future__ import annotations
 import torch
 
 from sfb_video.config import load_config
-from sfb_video.stages.detect import Neighbour, blob_colour, choose_blob, detect, difference_mask, frame_blobs
+from sfb_video.stages.detect import (
+    FrameBlobs,
+    Neighbour,
+    blob_colour,
+    choose_blob,
+    detect,
+    difference_mask,
+    frame_blobs,
+)
 from sfb_video.stages.types import Prediction
 
 CONFIG = load_config("default").detect
@@ -193,3 +201,49 @@ def test_a_tracked_object_is_not_taken_for_a_nearer_shadow_but_a_shade_alone_is_
     assert choose_blob(0, mask, prediction, CONFIG, (image, background)).box == ball
     alone = choose_blob(0, _mask(shadow, size=(60, 120)), prediction, CONFIG, (image, background))
     assert alone is not None and alone.box == shadow
+
+
+def _streaks(*boxes: tuple[int, int, int, int], fringe: int = 4) -> tuple[torch.Tensor, ...]:
+    """A frame, its background and its moving mask: strong streaks (``boxes``), each with a faint
+    ``fringe`` px wide around it that joins them into one region of the mask where they lie
+    close, as the hysteresis joins objects falling a few pixels apart."""
+    background = torch.full((3, 110, 120), 0.5)
+    image = background.clone()
+    for x, y, w, h in boxes:
+        image[:, max(0, y - fringe) : y + h + fringe, max(0, x - fringe) : x + w + fringe] = 0.54
+    for k, (x, y, w, h) in enumerate(boxes):  # each its own colour; the fringe: ||diff|| 0.07,
+        image[:, y : y + h, x : x + w] = 0.5  # under the threshold, over the weak one
+        image[k % 3, y : y + h, x : x + w] += 0.3
+    return image, background, difference_mask(image, background, CONFIG)
+
+
+def _boxes(found: FrameBlobs) -> list[tuple[int, int, int, int]]:
+    return sorted(tuple(int(v) for v in found.stats[k, :4]) for k in range(1, found.count) if found.stats[k, 4])
+
+
+def test_objects_falling_side_by_side_one_a_little_ahead_are_split_from_their_joined_blob() -> None:
+    # falling_three.mp4, frames 10-11: three parallel streaks 7-12 px apart, each a third of its
+    # length ahead of the next, joined by their faint fringes into one blob.
+    streaks = [(10, 10, 14, 40), (30, 35, 14, 40), (50, 60, 14, 40)]
+    image, background, mask = _streaks(*streaks)
+    assert len(_boxes(frame_blobs(mask, CONFIG))) == 1  # one blob without the frame's colours
+    found = frame_blobs(mask, CONFIG, (image, background), changed=mask)
+    boxes = _boxes(found)
+    assert len(boxes) == 3
+    for (x, y, w, h), (bx, by, bw, bh) in zip(streaks, boxes, strict=True):
+        # Each part holds its whole streak and little of the others'.
+        assert bx <= x and by <= y and bx + bw >= x + w and by + bh >= y + h
+        assert bw <= w + 10 and bh <= h + 10, ((x, y, w, h), (bx, by, bw, bh))
+    # Split from one changed region, each is an object of its own, not a shred of a larger mover.
+    assert all(found.own_object(k) for k in range(1, found.count) if found.stats[k, 4])
+
+
+def test_a_rings_two_sides_a_fence_cut_streak_and_streaks_at_an_angle_stay_one_blob() -> None:
+    cases = {
+        "a ring's two sides, level": [(10, 10, 14, 40), (34, 10, 14, 40)],
+        "a streak cut by a wire": [(10, 10, 14, 30), (12, 48, 14, 30)],
+        "streaks at a right angle": [(10, 10, 14, 40), (40, 60, 40, 14)],
+    }
+    for name, streaks in cases.items():
+        image, background, mask = _streaks(*streaks, fringe=8)
+        assert len(_boxes(frame_blobs(mask, CONFIG, (image, background)))) == 1, name

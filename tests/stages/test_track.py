@@ -198,6 +198,11 @@ def test_a_track_of_one_frame_chooses_after_a_longer_one_that_would_take_its_blo
     far, near = Prediction((30.0, 30.0), 10.0), Prediction((30.0, 17.0), 10.0)
     wants = [(piece, ((1, 0), last, near)), (pen, ((1, 0), last, far))]
     assert _choosing_order(found, wants) == [1, 0]
+    assert _choosing_order(found, wants, [False, False]) == [1, 0]
+    # But where the longer track would find another blob, the nearer guess chooses first:
+    # falling_three.mp4's red end's track, its guess drifted, took the pale end's blob from the
+    # pale end's new track, though the red end's own blob lay in its gate.
+    assert _choosing_order(found, wants, [False, True]) == [0, 1]
     # Of tracks that know their direction, the nearer prediction chooses first, however long:
     # two objects on one path.
     piece.length = 2
