@@ -5,7 +5,8 @@
 Scenarios (320x240, 8 frames, :data:`benchmarks.detect.BASE`'s objects, composited by
 :mod:`sfb_video.synth.several`): two crossing (the second mirrored and shifted so that both are
 at one place in the middle frame), two following each other along one path two frames apart,
-one entering as the other leaves, and three movers with a slow one beside them (which is not an
+one entering as the other leaves, three side by side, two side by side so close that their
+streaks touch (one a little ahead), and three movers with a slow one beside them (which is not an
 object to find). Each clip runs through the whole pipeline (``process_clip``, every mover
 tracked: ``video.max_objects=0``), and so does each object alone over the same background with
 the same noise.
@@ -113,11 +114,20 @@ def three_side_by_side() -> tuple[list[Layer], list[Layer], np.ndarray]:
     return [first, *others], [], background
 
 
+def two_side_by_side_touching() -> tuple[list[Layer], list[Layer], np.ndarray]:
+    # falling_three.mp4's objects: one path (one seed) drawn twice, the second a little aside
+    # and most of a streak behind, their faint fringes joining their streaks into one blob in
+    # seven of eight frames.
+    first, background = _layer(seed=1)
+    return [first, shifted(_layer(seed=1, shape="box")[0], -15, 28)], [], background
+
+
 SCENARIOS: dict[str, Callable[[], tuple[list[Layer], list[Layer], np.ndarray]]] = {
     "two crossing": two_crossing,
     "two following": two_following,
     "one enters as one leaves": one_enters_as_one_leaves,
     "three side by side": three_side_by_side,
+    "two side by side, touching": two_side_by_side_touching,
     "three, a slow one beside": three_and_a_slow_one,
 }
 """Scenario -> its objects to find, the movers not to find, and the background."""

@@ -14,6 +14,7 @@ wins.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -452,15 +453,21 @@ def share_out(
     return parts
 
 
-PARALLEL_DEG = 15.0
+PARALLEL_DEG = 30.0
 """Two strong cores whose axes differ by at most this many degrees are parallel (:func:`apart`).
-falling_three.mp4's side-by-side objects, frames 10 and 11: 1 to 9 degrees."""
+falling_three.mp4's objects side by side, frames 9-11: 1 to 16 degrees; a textured box's
+streak beside a ball's (``benchmarks.multi_object``): up to 22."""
 
 ALIGNED = 0.5
 """Two parallel cores side by side whose extents along their axis share at least this share of
 the shorter one are one object's (the two sides of a ring's streak: 0.67 and 1.0 in the
 synthetic ring); less, two objects falling beside each other, one a little ahead (falling_three,
 frames 10 and 11: 0.2 to 0.4)."""
+
+CORE_CLOSE_PX = 3
+"""A blob's strong pixels are closed by a square of this side before they are split into cores:
+a textured object's come in pieces a pixel apart. 5 joined two objects' cores in
+``benchmarks.multi_object``'s touching scenario, and a ring's streak cut by a pole came apart."""
 
 CORE_SHARE = 0.25
 """A strong core counts in :func:`side_by_side` from this share of the blob's largest core's area."""
@@ -481,7 +488,9 @@ class Core:
     width: float
 
     @classmethod
-    def of(cls, pixels: np.ndarray) -> Core:
+    def of(cls, where: np.ndarray) -> Core:
+        """The core of the (h, w) bool ``where``."""
+        pixels = np.stack(np.nonzero(where)[::-1], 1).astype(np.float64)
         centre = pixels.mean(0)
         spread, directions = np.linalg.eigh(np.cov((pixels - centre).T))
         return cls(pixels, centre, directions[:, 1], 4 * math.sqrt(max(float(spread[0]), 0.0)))
@@ -495,8 +504,8 @@ def apart(a: Core, b: Core) -> bool:
     """Whether two strong cores of one blob are two objects' streaks: parallel
     (:data:`PARALLEL_DEG`), beside each other (their centres more than half their mean width apart
     across the longer one's axis: not a streak cut in a row by a fence's wire) and one ahead of the
-    other (their extents along it share less than :data:`ALIGNED` of the shorter: not a ring's
-    two sides)."""
+    other (their extents along it share less than :data:`ALIGNED` of the shorter: not a ring's two
+    sides)."""
     if math.degrees(math.acos(min(1.0, abs(float(a.axis @ b.axis))))) > PARALLEL_DEG:
         return False
     ea, eb = a.extent(a.axis, a.centre), b.extent(a.axis, a.centre)
@@ -510,43 +519,64 @@ def apart(a: Core, b: Core) -> bool:
     return shared < ALIGNED * min(ea[1] - ea[0], eb[1] - eb[0])
 
 
-def side_by_side(blob: np.ndarray, difference: np.ndarray, threshold: float, min_area: int) -> list[np.ndarray] | None:
-    """A (h, w) bool ``blob`` whose strong cores (``difference`` (h, w) above ``threshold``) are
-    the streaks of objects falling beside each other (:func:`apart`) shared out among them, each
-    pixel to the nearest core of its object: (h, w) bool parts, or None where the blob is one
-    object's (a part would be smaller than ``min_area``). The hysteresis joins such streaks by
-    their faint fringes: falling_three.mp4's three objects, 7 to 12 px apart, in frames 10-11."""
-    count, cores = cv2.connectedComponents((blob & (difference > threshold)).astype(np.uint8), connectivity=8)
+def side_by_side(
+    blob: np.ndarray, image: np.ndarray, background: np.ndarray, threshold: float, min_area: int
+) -> list[np.ndarray] | None:
+    """A (h, w) bool ``blob`` whose strong cores (where (3, h, w) ``image`` differs from
+    ``background`` by more than ``threshold``, each uint8 or float in [0, 1]) are the streaks of
+    objects falling beside each other shared out among them: (h, w) bool parts, or None where the
+    blob is one object's (or a part would be smaller than ``min_area``).
+
+    Cores that are not apart (:func:`apart`) are one object's, and so are the cores not apart from
+    those, in a chain: a curved streak's pieces, each at an angle to the next, stay one object
+    (circle_fast.avi's swinging ball). The pixels of the cores go to their objects, the others to
+    the object whose largest core's axis lies nearest.
+    The hysteresis joins such streaks by their faint fringes:
+    falling_three.mp4's three objects, 7 to 12 px apart, in frames 9-11."""
+    change = np.linalg.norm(_as_unit(image) - _as_unit(background), axis=0)
+    strong = (blob & (change > threshold)).astype(np.uint8)
+    strong = cv2.morphologyEx(strong, cv2.MORPH_CLOSE, np.ones((CORE_CLOSE_PX,) * 2, np.uint8)) & blob
+    count, cores = cv2.connectedComponents(strong.astype(np.uint8), connectivity=8)
     sizes = np.bincount(cores.ravel(), minlength=count)
     sizes[0] = 0
-    big = [k for k in range(1, count) if sizes[k] >= max(min_area, CORE_SHARE * sizes.max())]
-    if len(big) < 2:
-        return None
-    found = [Core.of(np.stack(np.nonzero(cores == k)[::-1], 1).astype(np.float64)) for k in big]
-    group = list(range(len(found)))
-    for i in range(len(found)):
-        for j in range(i + 1, len(found)):
-            if not apart(found[i], found[j]):
-                old, new = group[j], group[i]
-                group = [new if g == old else g for g in group]
-    objects = sorted(set(group))
+    big = [k for k in np.argsort(-sizes, kind="stable") if sizes[k] >= max(min_area, CORE_SHARE * sizes.max())]
+    found = [Core.of(cores == k) for k in big]
+    group = list(range(len(found)))  # cores not apart are one object's, and so on in a chain
+    for i, j in itertools.combinations(range(len(found)), 2):
+        if group[i] != group[j] and not apart(found[i], found[j]):
+            group = [group[i] if g == group[j] else g for g in group]
+    # Each object's largest core (``big`` runs largest first), and all its cores.
+    members = {g: [int(big[k]) for k in range(len(found)) if group[k] == g] for g in dict.fromkeys(group)}
+    objects = [(found[group.index(g)], ks) for g, ks in members.items()]
     if len(objects) < 2:
         return None
+    # A pixel outside the cores goes to the object whose largest core's axis, between its ends, lies
+    # nearest: a streak's faint tail beyond its core lies on its own axis, nearer another core.
+    v, u = np.mgrid[: blob.shape[0], : blob.shape[1]]
+    points = np.stack((u, v), -1).astype(np.float64)
     distances = []
-    for g in objects:
-        seeds = np.isin(cores, [big[k] for k in range(len(found)) if group[k] == g])
-        distances.append(cv2.distanceTransform((~seeds).astype(np.uint8), cv2.DIST_L2, 3))
+    for core, _ in objects:
+        lo, hi = core.extent(core.axis, core.centre)
+        along = np.clip((points - core.centre) @ core.axis, lo, hi)
+        on_axis = np.linalg.norm(points - core.centre - along[..., None] * core.axis, axis=-1)
+        distances.append(on_axis - core.width / 2)
     owner = np.argmin(np.stack(distances), axis=0)
+    for k, (_, ks) in enumerate(objects):
+        owner[np.isin(cores, ks)] = k
     parts = [blob & (owner == k) for k in range(len(objects))]
     return None if min(int(p.sum()) for p in parts) < min_area else parts
 
 
+def _as_unit(pixels: np.ndarray) -> np.ndarray:
+    return pixels.astype(np.float32) / 255.0 if pixels.dtype == np.uint8 else pixels.astype(np.float32)
+
+
 def _split_side_by_side(
-    labels: np.ndarray, stats: np.ndarray, frame: tuple[torch.Tensor, torch.Tensor], config: DetectConfig
+    labels: np.ndarray, stats: np.ndarray, frame: tuple[np.ndarray, np.ndarray], config: DetectConfig
 ) -> tuple[np.ndarray, np.ndarray]:
     """The ``labels`` (H, W) of :func:`blobs` with each blob of objects side by side
     (:func:`side_by_side`) split into one label an object, and for each label the blob it was
-    split from (:attr:`FrameBlobs.joined`)."""
+    split from (:attr:`FrameBlobs.joined`). ``frame``: its (3, H, W) pixels and background."""
     joined = list(range(len(stats)))
     labels = labels.copy()
     for label in range(1, len(stats)):
@@ -554,8 +584,8 @@ def _split_side_by_side(
         if area < 2 * config.min_area_px:
             continue
         window = (slice(y, y + h), slice(x, x + w))
-        difference = difference_image(frame[0][(slice(None), *window)], frame[1][(slice(None), *window)])
-        parts = side_by_side(labels[window] == label, difference, config.threshold, config.min_area_px)
+        image, background = (f[(slice(None), *window)] for f in frame)
+        parts = side_by_side(labels[window] == label, image, background, config.threshold, config.min_area_px)
         for part in (parts or [])[1:]:
             labels[window][part] = len(joined)
             joined.append(label)
@@ -574,12 +604,12 @@ def frame_blobs(
     :meth:`FrameBlobs.own_object`."""
     mask = moving.cpu().numpy().astype(bool)
     count, labels, stats, centroids = blobs(mask, config.merge_px, config.min_area_px)
+    pixels = None if frame is None else (frame[0].cpu().numpy(), frame[1].cpu().numpy())
     joined = None
-    if frame is not None:
-        labels, joined = _split_side_by_side(labels, stats, frame, config)
+    if pixels is not None:
+        labels, joined = _split_side_by_side(labels, stats, pixels, config)
         count = len(joined)
         stats, centroids = _blob_stats(mask, labels, count)
-    pixels = None if frame is None else (frame[0].cpu().numpy(), frame[1].cpu().numpy())
     whole = None if changed is None else changed.cpu().numpy().astype(bool)
     return FrameBlobs(count, labels, stats, centroids, pixels, whole, joined)
 

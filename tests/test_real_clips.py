@@ -17,7 +17,7 @@ from benchmarks.detect import aerobie_clip
 from sfb_video.config import load_config
 from sfb_video.evaluation.objects import box_iou
 from sfb_video.stages.background import running_median, with_backgrounds
-from sfb_video.stages.detect import choose_blob, moving_mask
+from sfb_video.stages.detect import choose_blob, frame_blobs, moving_mask
 from sfb_video.stages.process import ProcessOptions, process_clip
 from sfb_video.stages.track import with_neighbours
 from sfb_video.stages.types import Frame
@@ -113,3 +113,26 @@ def test_a_real_still_camera_is_found_still(name: str) -> None:
     assert camera_motion(CLIPS / name, range(0, 40), CameraConfig()) is None
     motion = register_frames(((f.index, f.image) for f in read_frames(CLIPS / name, range(0, 40))), CameraConfig())
     assert not motion.failed
+
+
+def test_objects_falling_side_by_side_are_found_apart() -> None:
+    # falling_three.mp4, frames 10 and 11: a red end, a pale end and a grey object fall 7-12 px
+    # apart, and their faint fringes join them into one region of the difference mask. Each is
+    # a blob of its own (the boxes of their strong pixels, measured).
+    config = load_config("fast")
+    cores = {
+        10: [(374, 18, 14, 39), (334, 43, 16, 34), (359, 65, 14, 40)],
+        11: [(369, 68, 18, 49), (330, 101, 16, 43), (356, 134, 15, 50)],
+    }
+    frames = with_backgrounds(CLIPS / "falling_three.mp4", config.video, 12)
+    for frame, mask, neighbours in with_neighbours(frames, config):
+        if frame.index not in cores:
+            continue
+        moving = moving_mask(mask, neighbours, config.detect)
+        found = frame_blobs(moving, config.detect, (frame.pixels, frame.background_pixels), mask)
+        owners = []
+        for x, y, w, h in cores[frame.index]:
+            labels, counts = np.unique(found.labels[y : y + h, x : x + w], return_counts=True)
+            owners.append(int(labels[labels > 0][np.argmax(counts[labels > 0])]))
+            assert found.own_object(owners[-1])
+        assert len(set(owners)) == 3, (frame.index, owners)
