@@ -377,9 +377,11 @@ class FrameBlobs:
                 self._changed_areas = regions, np.bincount(regions.ravel())
             regions, areas = self._changed_areas
             touched = np.unique(regions[self.labels == label])
-            # Objects side by side split from one blob lie in one changed region together.
-            siblings = [label] if self.joined is None else np.flatnonzero(self.joined == self.joined[label])
-            if float(areas[touched[touched > 0]].sum()) > SHRED_RATIO * sum(self.area(k) for k in siblings):
+            touched = touched[touched > 0]
+            # Objects side by side, split from one blob, share their changed region.
+            siblings = [label] if self.joined is None else np.flatnonzero(self.joined == self.joined[label]).tolist()
+            own = sum(self.area(k) for k in siblings if k == label or np.isin(regions[self.labels == k], touched).any())
+            if float(areas[touched].sum()) > SHRED_RATIO * own:
                 return False
         return not self.shade(label)
 
@@ -529,9 +531,9 @@ def side_by_side(
 
     Cores that are not apart (:func:`apart`) are one object's, and so are the cores not apart from
     those, in a chain: a curved streak's pieces, each at an angle to the next, stay one object
-    (circle_fast.avi's swinging ball). The pixels of the cores go to their objects, the others to
-    the object whose largest core's axis lies nearest.
-    The hysteresis joins such streaks by their faint fringes:
+    (circle_fast.avi's swinging ball). Only cores of at least :data:`CORE_SHARE` of the largest
+    count; their pixels go to their objects, every other pixel of the blob to the object whose
+    largest core's axis lies nearest. The hysteresis joins such streaks by their faint fringes:
     falling_three.mp4's three objects, 7 to 12 px apart, in frames 9-11."""
     change = np.linalg.norm(_as_unit(image) - _as_unit(background), axis=0)
     strong = (blob & (change > threshold)).astype(np.uint8)
@@ -539,7 +541,8 @@ def side_by_side(
     count, cores = cv2.connectedComponents(strong.astype(np.uint8), connectivity=8)
     sizes = np.bincount(cores.ravel(), minlength=count)
     sizes[0] = 0
-    big = [k for k in np.argsort(-sizes, kind="stable") if sizes[k] >= max(min_area, CORE_SHARE * sizes.max())]
+    # Three pixels at least: a core's axis is the spread of its pixels.
+    big = [k for k in np.argsort(-sizes, kind="stable") if sizes[k] >= max(min_area, 3, CORE_SHARE * sizes.max())]
     found = [Core.of(cores == k) for k in big]
     group = list(range(len(found)))  # cores not apart are one object's, and so on in a chain
     for i, j in itertools.combinations(range(len(found)), 2):

@@ -247,21 +247,19 @@ def _choosing_order(
     miss = [math.inf if w is None else _miss(found, w[0][0], w[2]) / max(w[2].diameter, 1.0) for _, w in wants]
     # A track that would take no blob is a group of its own.
     group = [(-1 - k) if w is None else w[0][0] for k, (_, w) in enumerate(wants)]
+    others = elsewhere or [False] * len(wants)
     longest: dict[int, int] = {}
-    nearest: dict[int, int] = {}
-
-    def surer(k: int, than: int) -> bool:
-        guessing = [wants[i][0].length < 2 for i in (k, than)]
-        if guessing[0] != guessing[1] and not (elsewhere or [False] * len(wants))[than if guessing[0] else k]:
-            # A track of one frame guesses its direction: it comes after a longer one that
-            # would lose its object.
-            return guessing[1]
-        return miss[k] < miss[than]
-
+    members: dict[int, list[int]] = {}
     for k, (tracker, _) in enumerate(wants):
         longest[group[k]] = max(longest.get(group[k], 0), tracker.length)
-        if group[k] not in nearest or surer(k, nearest[group[k]]):
-            nearest[group[k]] = k
+        members.setdefault(group[k], []).append(k)
+    nearest: dict[int, int] = {}
+    for g, ks in members.items():
+        # A track of one frame guesses its direction: it comes after a longer one that would
+        # lose its object.
+        held = any(wants[k][0].length >= 2 and not others[k] for k in ks)
+        sure = [k for k in ks if not (held and wants[k][0].length < 2)]
+        nearest[g] = min(sure, key=lambda k: (miss[k], k))
 
     def place(k: int) -> int:
         return longest[group[k]] if nearest[group[k]] == k else wants[k][0].length

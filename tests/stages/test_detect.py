@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from sfb_video.config import load_config
@@ -221,11 +222,15 @@ def _boxes(found: FrameBlobs) -> list[tuple[int, int, int, int]]:
     return sorted(tuple(int(v) for v in found.stats[k, :4]) for k in range(1, found.count) if found.stats[k, 4])
 
 
-def test_objects_falling_side_by_side_one_a_little_ahead_are_split_from_their_joined_blob() -> None:
+@pytest.mark.parametrize("dtype", [torch.float32, torch.uint8])
+def test_objects_falling_side_by_side_one_a_little_ahead_are_split_from_their_joined_blob(dtype: torch.dtype) -> None:
     # falling_three.mp4, frames 10-11: three parallel streaks 7-12 px apart, each a third of its
-    # length ahead of the next, joined by their faint fringes into one blob.
+    # length ahead of the next, joined by their faint fringes into one blob. A clip's frames are
+    # kept as uint8.
     streaks = [(10, 10, 14, 40), (30, 35, 14, 40), (50, 60, 14, 40)]
     image, background, mask = _streaks(*streaks)
+    if dtype == torch.uint8:
+        image, background = ((255 * t).round().to(torch.uint8) for t in (image, background))
     assert len(_boxes(frame_blobs(mask, CONFIG))) == 1  # one blob without the frame's colours
     found = frame_blobs(mask, CONFIG, (image, background), changed=mask)
     boxes = _boxes(found)
@@ -235,7 +240,9 @@ def test_objects_falling_side_by_side_one_a_little_ahead_are_split_from_their_jo
         assert bx <= x and by <= y and bx + bw >= x + w and by + bh >= y + h
         assert bw <= w + 10 and bh <= h + 10, ((x, y, w, h), (bx, by, bw, bh))
     # Split from one changed region, each is an object of its own, not a shred of a larger mover.
-    assert all(found.own_object(k) for k in range(1, found.count) if found.stats[k, 4])
+    parts = [k for k in range(1, found.count) if found.stats[k, 4]]
+    assert all(found.own_object(k) for k in parts)
+    assert found.joined is not None and len({int(found.joined[k]) for k in parts}) == 1
 
 
 def test_a_rings_two_sides_a_fence_cut_streak_and_streaks_at_an_angle_stay_one_blob() -> None:

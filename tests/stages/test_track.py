@@ -203,6 +203,14 @@ def test_a_track_of_one_frame_chooses_after_a_longer_one_that_would_take_its_blo
     # falling_three.mp4's red end's track, its guess drifted, took the pale end's blob from the
     # pale end's new track, though the red end's own blob lay in its gate.
     assert _choosing_order(found, wants, [False, True]) == [0, 1]
+    # With a third, longer track that has another blob too, in either order: of the longer ones
+    # the nearer chooses first, and the track of one frame still comes after the pen, which has
+    # no other blob.
+    other = Tracker(CAMERA, config)
+    piece.length, other.length = 1, 3
+    three = [(pen, ((1, 0), last, far)), (other, ((1, 0), last, Prediction((30.0, 22.0), 10.0))), wants[0]]
+    assert _choosing_order(found, three, [False, True, True]) == [1, 0, 2]
+    assert _choosing_order(found, three[::-1], [True, True, False]) == [1, 2, 0]
     # Of tracks that know their direction, the nearer prediction chooses first, however long:
     # two objects on one path.
     piece.length = 2
