@@ -521,13 +521,11 @@ def apart(a: Core, b: Core) -> bool:
     return shared < ALIGNED * min(ea[1] - ea[0], eb[1] - eb[0])
 
 
-def side_by_side(
-    blob: np.ndarray, image: np.ndarray, background: np.ndarray, threshold: float, min_area: int
-) -> list[np.ndarray] | None:
-    """A (h, w) bool ``blob`` whose strong cores (where (3, h, w) ``image`` differs from
-    ``background`` by more than ``threshold``, each uint8 or float in [0, 1]) are the streaks of
-    objects falling beside each other shared out among them: (h, w) bool parts, or None where the
-    blob is one object's (or a part would be smaller than ``min_area``).
+def side_by_side(blob: np.ndarray, difference: np.ndarray, threshold: float, min_area: int) -> list[np.ndarray] | None:
+    """A (h, w) bool ``blob`` whose strong cores (its (h, w) :func:`difference_image` above
+    ``threshold``) are the streaks of objects falling beside each other shared out among them:
+    (h, w) bool parts, or None where the blob is one object's (or a part would be smaller than
+    ``min_area``).
 
     Cores that are not apart (:func:`apart`) are one object's, and so are the cores not apart from
     those, in a chain: a curved streak's pieces, each at an angle to the next, stay one object
@@ -535,8 +533,7 @@ def side_by_side(
     count; their pixels go to their objects, every other pixel of the blob to the object whose
     largest core's axis lies nearest. The hysteresis joins such streaks by their faint fringes:
     falling_three.mp4's three objects, 7 to 12 px apart, in frames 9-11."""
-    change = np.linalg.norm(_as_unit(image) - _as_unit(background), axis=0)
-    strong = (blob & (change > threshold)).astype(np.uint8)
+    strong = (blob & (difference > threshold)).astype(np.uint8)
     strong = cv2.morphologyEx(strong, cv2.MORPH_CLOSE, np.ones((CORE_CLOSE_PX,) * 2, np.uint8)) & blob
     count, cores = cv2.connectedComponents(strong.astype(np.uint8), connectivity=8)
     sizes = np.bincount(cores.ravel(), minlength=count)
@@ -570,12 +567,8 @@ def side_by_side(
     return None if min(int(p.sum()) for p in parts) < min_area else parts
 
 
-def _as_unit(pixels: np.ndarray) -> np.ndarray:
-    return pixels.astype(np.float32) / 255.0 if pixels.dtype == np.uint8 else pixels.astype(np.float32)
-
-
 def _split_side_by_side(
-    labels: np.ndarray, stats: np.ndarray, frame: tuple[np.ndarray, np.ndarray], config: DetectConfig
+    labels: np.ndarray, stats: np.ndarray, frame: tuple[torch.Tensor, torch.Tensor], config: DetectConfig
 ) -> tuple[np.ndarray, np.ndarray]:
     """The ``labels`` (H, W) of :func:`blobs` with each blob of objects side by side
     (:func:`side_by_side`) split into one label an object, and for each label the blob it was
@@ -587,8 +580,8 @@ def _split_side_by_side(
         if area < 2 * config.min_area_px:
             continue
         window = (slice(y, y + h), slice(x, x + w))
-        image, background = (f[(slice(None), *window)] for f in frame)
-        parts = side_by_side(labels[window] == label, image, background, config.threshold, config.min_area_px)
+        difference = difference_image(*(f[(slice(None), *window)] for f in frame))
+        parts = side_by_side(labels[window] == label, difference, config.threshold, config.min_area_px)
         for part in (parts or [])[1:]:
             labels[window][part] = len(joined)
             joined.append(label)
@@ -609,8 +602,8 @@ def frame_blobs(
     count, labels, stats, centroids = blobs(mask, config.merge_px, config.min_area_px)
     pixels = None if frame is None else (frame[0].cpu().numpy(), frame[1].cpu().numpy())
     joined = None
-    if pixels is not None:
-        labels, joined = _split_side_by_side(labels, stats, pixels, config)
+    if frame is not None:
+        labels, joined = _split_side_by_side(labels, stats, frame, config)
         count = len(joined)
         stats, centroids = _blob_stats(mask, labels, count)
     whole = None if changed is None else changed.cpu().numpy().astype(bool)
