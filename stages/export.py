@@ -47,8 +47,8 @@ from sfb_video.run_folder import (
 )
 from sfb_video.stages.composite import BLUR_POSES, explained, fitted_region, region_box
 from sfb_video.stages.detect import difference_image, threshold_difference
-from sfb_video.stages.types import FrameStatus, FrameWithBackground, Registered, Window
-from sfb_video.stages.windows import frame_windows, with_joint
+from sfb_video.stages.types import FrameStatus, FrameWithBackground, Registered
+from sfb_video.stages.windows import with_joint
 from sfb_video.video import OUTPUT_PRESET, VideoWriter
 
 
@@ -457,10 +457,12 @@ def _fit_record(result: FrameResult, speed: float, diameter: float | None) -> di
 
 
 class _Windows:
-    """The joint fits of a run, loaded one window at a time per track as the frames stream past."""
+    """The joint fits of a run, loaded one window at a time per track as the frames stream past;
+    ``owner``: (frame index, track) -> the key of the window that stands for it
+    (:func:`~sfb_video.stages.windows.shown_windows`)."""
 
-    def __init__(self, folder: Path, windows: list[Window]) -> None:
-        self.folder, self.owner = folder, frame_windows(windows)
+    def __init__(self, folder: Path, owner: dict[tuple[int, int], tuple[int, int]]) -> None:
+        self.folder, self.owner = folder, owner
         self.loaded: dict[int, SavedWindow] = {}
 
     def of(self, key: tuple[int, int]) -> SavedWindow | None:
@@ -479,7 +481,7 @@ def export_frames(
     folder: Path,
     frames: Iterator[FrameWithBackground],
     statuses: list[FrameStatus],
-    windows: list[Window],
+    shown: dict[tuple[int, int], tuple[int, int]],
     camera: PinholeCamera,
     size: tuple[int, int],
     fps: float,
@@ -501,7 +503,7 @@ def export_frames(
     for s in statuses:
         if s.status == "fitted" and s.track is not None:
             fitted.setdefault(s.index, []).append(s)
-    joint = _Windows(folder, windows)
+    joint = _Windows(folder, shown)
     ensure_folder(folder / MESHES)
     with VideoWriter(folder / TSR_VIDEO, fps * n, *size, preset=OUTPUT_PRESET) as video:
         for frame in frames:

@@ -49,7 +49,7 @@ from sfb_video.stages.read import check_video, probe, select_frames
 from sfb_video.stages.register import camera_motion
 from sfb_video.stages.track import track_and_fit
 from sfb_video.stages.types import FrameStatus
-from sfb_video.stages.windows import fit_windows, track_windows
+from sfb_video.stages.windows import fit_windows, shown_windows, track_windows, window_key
 from sfb_video.timing import timed
 from sfb_video.video import VideoInfo
 
@@ -174,18 +174,18 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     windows = track_windows(statuses, config.joint.window, config.joint.overlap) if config.joint.enabled else []
     # A window whose joint fit diverged was not saved, and one that explains its frames worse
     # than their single-frame fits is not accepted: their frames keep the single-frame fits.
-    windows = [w for w in windows if window_path(folder, w[0], w[1][0]).is_file()]
-    summary_windows = windows
-    windows = [w for w in windows if load_window(window_path(folder, w[0], w[1][0])).accepted]
+    saved = [w for w in windows if window_path(folder, w[0], w[1][0]).is_file()]
+    accepted = [window_key(w) for w in saved if load_window(window_path(folder, w[0], w[1][0])).accepted]
+    shown = shown_windows(windows, accepted)
     diameter = record["object_diameter"]
     name = printable(video.stem)
     with Recorder(folder / RECORDING, camera, name, subframes=tsr) as recorder:
-        done = export_frames(folder, stream, statuses, windows, camera, size, info.fps, tsr, config, diameter, recorder)
+        done = export_frames(folder, stream, statuses, shown, camera, size, info.fps, tsr, config, diameter, recorder)
         write_csv(folder / TRAJECTORY, done.rows)
         summary = _summary(record, info, statuses, done, tsr, device_note, config.video.min_explained)
         summary["tracks"] = _track_summary(statuses, done)
         summary["camera"] = _camera_summary(motion)
-        summary["joint"] = _joint_summary(folder, summary_windows)
+        summary["joint"] = _joint_summary(folder, saved)
         recorder.log_run(config_to_dict(config), summary)
     write_json(folder / SUMMARY, summary)
     return summary

@@ -20,10 +20,13 @@ middle is nearest, :func:`frame_windows`).
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 from collections.abc import Callable, Collection, Iterator
 from pathlib import Path
 
+import cv2
+import numpy as np
 import torch
 
 from sfb_video.config import Config
@@ -44,6 +47,7 @@ from sfb_video.results import (
 )
 from sfb_video.run_folder import frame_path, window_path
 from sfb_video.stages.composite import fit_quality, object_radius, path_mask
+from sfb_video.stages.detect import PARALLEL_DEG
 from sfb_video.stages.types import FrameStatus, FrameWithBackground, Window
 from sfb_video.timing import timed
 
@@ -94,6 +98,16 @@ def frame_windows(windows: list[Window]) -> dict[tuple[int, int], tuple[int, int
     return {key: first for key, (_, first) in owner.items()}
 
 
+def shown_windows(
+    windows: list[Window], accepted: Collection[tuple[int, int]]
+) -> dict[tuple[int, int], tuple[int, int]]:
+    """:func:`frame_windows` of every window fitted (``windows``), less the frames whose window
+    is not among the ``accepted`` keys: such a frame keeps its single-frame fit. A neighbour
+    window that also covers it was never judged there (only on the frames it stands for), and
+    its pose there may be far off."""
+    return {key: first for key, first in frame_windows(windows).items() if first in accepted}
+
+
 def previous_window(
     windows: list[Window], done: dict[tuple[int, int], SavedWindow], track: int, first: int
 ) -> SavedWindow | None:
@@ -117,9 +131,11 @@ def with_joint(result: FrameResult, window: SavedWindow) -> FrameResult:
 
 def final_results(folder: Path) -> dict[tuple[int, int], FrameResult]:
     """Every object fitted in a run, by (frame index, track), as its outputs show it: from the
-    window that stands for it where an accepted joint fit was saved, else its single-frame fit."""
-    windows = {w.key: w for w in load_windows(folder) if w.accepted}
-    owner = frame_windows([(w.track, w.frames) for w in windows.values()])
+    window that stands for it where an accepted joint fit was saved, else its single-frame fit
+    (:func:`shown_windows`)."""
+    windows = {w.key: w for w in load_windows(folder)}
+    accepted = [k for k, w in windows.items() if w.accepted]
+    owner = shown_windows([(w.track, w.frames) for w in windows.values()], accepted)
     results = load_results(folder)
     return {k: with_joint(r, windows[owner[k]]) if k in owner else r for k, r in results.items()}
 
@@ -174,23 +190,69 @@ def window_frame(
     return WindowFrame(frame.index, crop, masks)
 
 
-def object_paths(results: dict[int, FrameResult], camera: PinholeCamera) -> dict[int, torch.Tensor]:
-    """Per track, the (H, W) bool path of its object fitted in one frame (``results``, by track)
-    in ``camera``'s image (:func:`~sfb_video.stages.composite.path_mask`)."""
+@dataclasses.dataclass(frozen=True)
+class ObjectPath:
+    """Where one object fitted in a frame can be (``mask``, (H, W) bool,
+    :func:`~sfb_video.stages.composite.path_mask`), each pixel's distance from its projected
+    centre's path (``distance``, (H, W) float32 pixels), and that path's (2,) unit ``direction``
+    in the image (None for an object that hardly moves)."""
+
+    mask: torch.Tensor
+    distance: torch.Tensor
+    direction: np.ndarray | None
+
+    def beside(self, other: ObjectPath) -> bool:
+        """Whether ``other`` runs beside this path (within :data:`PARALLEL_DEG`, not across it)
+        and within it: at least half its centre's path inside this one's ``mask``."""
+        if self.direction is None or other.direction is None:
+            return False
+        if abs(float(self.direction @ other.direction)) < math.cos(math.radians(PARALLEL_DEG)):
+            return False
+        centre = other.distance < 0.5
+        return bool((centre & self.mask).sum() >= 0.5 * centre.sum())
+
+
+def object_paths(results: dict[int, FrameResult], camera: PinholeCamera) -> dict[int, ObjectPath]:
+    """Per track, the :class:`ObjectPath` of its object fitted in one frame (``results``, by
+    track) in ``camera``'s image."""
     paths = {}
     for track, result in results.items():
-        state = result.state
-        paths[track] = torch.from_numpy(path_mask(state.motion, object_radius(state, camera), camera))
+        motion = result.state.motion
+        mask = path_mask(motion, object_radius(result.state, camera), camera)
+        centre = path_mask(motion, 0.5, camera)
+        distance = cv2.distanceTransform((~centre).astype(np.uint8), cv2.DIST_L2, 3)
+        uv, _ = camera.project(motion.at(torch.tensor([0.0, 1.0]))[1])
+        step = (uv[1] - uv[0]).detach().cpu().double().numpy()
+        length = float(np.linalg.norm(step))
+        direction = step / length if length >= 1 else None
+        paths[track] = ObjectPath(torch.from_numpy(mask), torch.from_numpy(distance), direction)
     return paths
 
 
-def others_region(track: int, paths: dict[int, torch.Tensor]) -> torch.Tensor:
+def others_region(track: int, paths: dict[int, ObjectPath], apart: Collection[int] = ()) -> torch.Tensor:
     """(H, W) bool where the other tracks of a frame put their objects (their ``paths``,
-    :func:`object_paths`), less where ``track``'s own is: what a window of ``track`` should not
-    try to explain (:meth:`~sfb_video.stages.types.FrameWithBackground.without`); a hole where
-    two paths cross would cost its fit more than the other's streak does."""
-    others = torch.stack([path for t, path in paths.items() if t != track]).any(dim=0)
-    return others & ~paths[track]
+    :func:`object_paths`): what a window of ``track`` should not try to explain
+    (:meth:`~sfb_video.stages.types.FrameWithBackground.without`). ``apart``: the tracks whose
+    streaks touched no other's in the frame (their blobs were their own, or split apart).
+
+    Where another path overlaps this track's own, the overlap stays this object's: where the
+    other's streak passes across this one's, a hole in it would cost the fit more than the other's
+    streak does. But for a neighbour apart from this object that runs beside its path and lies
+    within it (:meth:`ObjectPath.beside`), each pixel goes to the path whose centre passes nearer: a fitted
+    path's capsule is as wide as the object's furthest vertex, often far wider than its streak,
+    and can hold a neighbour's streak whole (falling_three's frame 11: the window took the
+    neighbours in and drew the three as one smear). Not for every overlap: where two streaks
+    touch (two objects crossing), a single-frame fit's path can come out beside the other's
+    though the objects cross, and its centre then takes this object's streak away.
+    """
+    own = paths[track]
+    region = torch.zeros_like(own.mask)
+    for t, other in paths.items():
+        if t != track:
+            nearer = track in apart and t in apart and own.beside(other)
+            kept = own.mask & (own.distance <= other.distance) if nearer else own.mask
+            region |= other.mask & ~kept
+    return region
 
 
 def fit_track_window(
@@ -321,7 +383,8 @@ def fit_windows(
             box = boxes[key]
             assert box is not None  # a fitted object has its detection
             # Several objects in the frame: the others show the background.
-            seen = frame.without(others_region(key[1], paths)) if paths else frame
+            apart = {t for t in paths if (frame.index, t) not in touched}
+            seen = frame.without(others_region(key[1], paths, apart)) if paths else frame
             crops[key] = window_frame(seen, box, results[key[1]], camera, config, device)
         ready = [w for w in pending if all((i, w[0]) in crops for i in w[1])]
         for track, members in ready:

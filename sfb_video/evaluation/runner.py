@@ -40,9 +40,9 @@ from sfb_video.stages.windows import (
     fit_track_window,
     frame_windows,
     previous_window,
+    shown_windows,
     track_windows,
     window_frame,
-    window_key,
     with_joint,
 )
 from sfb_video.synth import SyntheticClip
@@ -337,7 +337,7 @@ def _joint_rows(
             print(f"{sequence.name}: joint fit of frames {members[0]}-{members[-1]} skipped: {exc}", file=sys.stderr)
         for i in members:
             seconds[i] += (time.perf_counter() - started) / len(members)
-    owner = frame_windows([w for w in windows if window_key(w) in done and done[window_key(w)].accepted])
+    owner = shown_windows(windows, [k for k, w in done.items() if w.accepted])
     rows = list(unfitted)
     for index, (frame, result, _) in sorted(fitted.items()):
         key = (index, tracks.get(index))

@@ -18,7 +18,7 @@ from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.stages import windows
 from sfb_video.stages.types import FrameStatus, FrameWithBackground
-from sfb_video.stages.windows import frame_windows, shared_boxes, track_windows
+from sfb_video.stages.windows import frame_windows, shared_boxes, shown_windows, track_windows
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
 E = 0.6
@@ -64,6 +64,15 @@ def test_each_frame_is_shown_by_the_window_whose_middle_is_nearest() -> None:
     assert [owner[i, 0] for i in range(10)] == [(0, 0)] * 5 + [(4, 0)] * 5
     assert owner[12, 1] == owner[13, 1] == (12, 1) and (11, 1) not in owner
     assert owner[4, 2] == owner[5, 2] == (4, 2)  # another object's window in the same frames
+
+
+def test_a_frame_whose_window_was_rejected_keeps_its_single_fit() -> None:
+    # falling_three frames 12-13: their window (frames 10-15) was rejected, and the previous
+    # window, never judged on them, drew its object there three times too large over the bowl.
+    windows_ = [(0, [0, 1, 2, 3, 4, 5]), (0, [4, 5, 6, 7, 8, 9]), (1, [4, 5])]
+    shown = shown_windows(windows_, accepted=[(0, 0), (4, 1)])
+    assert [shown.get((i, 0)) for i in range(10)] == [(0, 0)] * 5 + [None] * 5
+    assert shown[4, 1] == shown[5, 1] == (4, 1)
 
 
 def _seeds(path: list[torch.Tensor]) -> list[Seed]:
@@ -321,8 +330,36 @@ def test_a_window_sees_the_other_objects_of_its_frames_as_the_background(
         crossing = paths[1 - track] & paths[track]
         assert bool(other.any()) and bool(crossing.any())
         assert bool((seen[:, other] == 0).all())  # the other object's path: the background
-        assert torch.equal(seen[:, ~other], pixels[:, ~other])  # this one's, and the rest, as filmed
+        # This one's, the crossing included (a hole there costs more), and the rest, as filmed.
+        assert torch.equal(seen[:, ~other], pixels[:, ~other])
     assert all(torch.equal(f.pixels, pixels) for f in frames)  # the frames themselves untouched
+
+
+def test_a_neighbour_beside_a_wide_path_is_background_for_its_window() -> None:
+    # falling_three frame 11: the pale end's fitted path, as wide as its object's furthest
+    # vertex (84 px), held the two streaks beside it; its window took them in and drew the three
+    # as one smear. The neighbour's pixels nearer its own centre are now the background.
+    vertices, topology = load_prototype("sphere")
+    states = {
+        track: ObjectState(
+            vertices * scale,
+            topology,
+            torch.rand(3, 8, 8),
+            Motion(torch.tensor([x, -0.3, 5.0]), torch.tensor([0.0, 0.6, 0.0]), torch.eye(3), torch.zeros(3)),
+        )
+        for track, (x, scale) in {0: (0.0, 1.0), 1: (0.5, 0.2)}.items()
+    }
+    results = {t: type("Result", (), {"state": s})() for t, s in states.items()}
+    paths = windows.object_paths(results, CAMERA)  # type: ignore[arg-type]
+    neighbour = paths[1].mask
+    assert bool((neighbour & paths[0].mask).float().mean() > 0.5 * neighbour.float().mean())  # inside the wide path
+    hidden = windows.others_region(0, paths, apart={0, 1})
+    assert bool(hidden[paths[1].distance < 2].all())  # the neighbour's centre
+    assert not bool(hidden[paths[0].distance < 10].any())  # this object's own streak
+    assert not bool(windows.others_region(1, paths, apart={0, 1})[paths[1].distance < 5].any())
+    # Streaks that touched (objects crossing, whose fitted paths may look level): the overlap
+    # stays this object's.
+    assert not bool((windows.others_region(0, paths, apart={1}) & paths[0].mask).any())
 
 
 def test_a_touched_frame_is_cropped_around_the_whole_blob_its_streak_shares() -> None:
