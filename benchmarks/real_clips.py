@@ -31,9 +31,8 @@ from sfb_video.config import load_config
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion
 from sfb_video.results import FrameResult, load_results
-from sfb_video.stages.process import ProcessOptions, clip_camera, process_clip, read_run
+from sfb_video.stages.process import ProcessOptions, clip_camera, final_results, process_clip, read_run
 from sfb_video.stages.read import probe
-from sfb_video.stages.windows import final_results
 
 CLIPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "clips"
 
@@ -89,7 +88,7 @@ def main() -> None:
             boxes = {(s.index, s.track): s.box for s in statuses}
             joint_e = summary["joint"]["exposure_fraction"] or config.video.exposure_fraction
             before = measure(load_results(out), boxes, config.video.exposure_fraction, camera)
-            after = measure(final_results(out), boxes, joint_e, camera)
+            after = measure(final_results(out, config), boxes, joint_e, camera)
         print(
             f"| {clip.name} | {summary['frames_fitted']} | {before['travel_ratio']:.2f} | {after['travel_ratio']:.2f} "
             f"| {before['join_px']:.1f} | {after['join_px']:.1f} | {joint_e:.2f} | {seconds:.0f} |",

@@ -539,7 +539,9 @@ def export_frames(
                     record.update(
                         window=window.frames[0], losses_before=single.losses, prototype_before=single.prototype
                     )
-                    if frame.index + 1 in window.result.losses:
+                    # The gap to the next frame is drawn where the next frame is shown from a
+                    # window too, not from its single-frame fit (its window rejected).
+                    if frame.index + 1 in window.result.losses and (frame.index + 1, result.track) in joint.owner:
                         rows += gap_rows(window.result.trajectory, frame.index, camera, n, fps, diameter)
                 if mapped_back(frame, config):
                     assert frame.registered is not None and frame.registered.to_canvas is not None

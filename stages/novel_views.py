@@ -21,7 +21,7 @@ from sfb_video.imageio import write_image
 from sfb_video.model.scene import ObjectState
 from sfb_video.render import MeshRenderer
 from sfb_video.run_folder import NOVEL_VIEWS, ensure_folder, novel_view_path
-from sfb_video.stages.windows import final_results
+from sfb_video.stages.process import final_results
 from sfb_video.video import OUTPUT_PRESET, VideoWriter
 
 SIZE = (320, 240)
@@ -54,7 +54,7 @@ def turntable(state: ObjectState, views: int, config: Config, background: float 
 def write_novel_views(folder: Path, config: Config, frames: list[int], views: int) -> list[Path]:
     """Turntables of the meshes of every object in ``frames`` (the best object when empty);
     returns the videos written."""
-    results = final_results(folder)
+    results = final_results(folder, config)
     if not results:
         raise SfbError(f"{folder} holds no fitted frame to render")
     if views < 2:

@@ -26,7 +26,7 @@ from sfb_video.errors import SfbError, printable
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.recording import Recorder
 from sfb_video.registration import CameraMotion
-from sfb_video.results import FrameResult, SavedWindow, load_window
+from sfb_video.results import FrameResult, SavedWindow, load_result, load_window
 from sfb_video.run_folder import (
     CAMERA_MOTION,
     CONFIG,
@@ -37,6 +37,7 @@ from sfb_video.run_folder import (
     SUMMARY,
     TRAJECTORY,
     RunFolder,
+    frame_path,
     open_run,
     read_marker,
     saved_frames,
@@ -48,8 +49,8 @@ from sfb_video.stages.masks import MaskSource, choose_masks, print_line
 from sfb_video.stages.read import check_video, probe, select_frames
 from sfb_video.stages.register import camera_motion
 from sfb_video.stages.track import track_and_fit
-from sfb_video.stages.types import FrameStatus
-from sfb_video.stages.windows import fit_windows, shown_windows, track_windows, window_key
+from sfb_video.stages.types import FrameStatus, Window
+from sfb_video.stages.windows import fit_windows, shown_windows, track_windows, window_key, with_joint
 from sfb_video.timing import timed
 from sfb_video.video import VideoInfo
 
@@ -155,6 +156,41 @@ def read_run(folder: Path) -> tuple[dict, list[FrameStatus]]:
     ]
 
 
+def run_windows(
+    folder: Path, statuses: list[FrameStatus], config: Config
+) -> tuple[list[Window], dict[tuple[int, int], tuple[int, int]]]:
+    """A run's saved windows (accepted or not), and (frame index, track) -> the key of the window
+    whose joint fit its outputs show (:func:`~sfb_video.stages.windows.shown_windows`)."""
+    windows = track_windows(statuses, config.joint.window, config.joint.overlap) if config.joint.enabled else []
+    # A window whose joint fit diverged was not saved, and one that explains its frames worse
+    # than their single-frame fits is not accepted: their frames keep the single-frame fits.
+    saved = [w for w in windows if window_path(folder, w[0], w[1][0]).is_file()]
+    accepted = [window_key(w) for w in saved if load_window(window_path(folder, w[0], w[1][0])).accepted]
+    return saved, shown_windows(windows, accepted)
+
+
+def final_results(folder: Path, config: Config) -> dict[tuple[int, int], FrameResult]:
+    """Every object fitted in a run folder (its tracks not dropped), by (frame index, track), as
+    its outputs show it: from the window that stands for it where that window's joint fit was
+    accepted, else its single-frame fit (:func:`run_windows`)."""
+    _, statuses = read_run(folder)
+    _, shown = run_windows(folder, statuses, config)
+    windows: dict[tuple[int, int], SavedWindow] = {}
+    results = {}
+    for status in statuses:
+        if status.status != "fitted":
+            continue
+        key = (status.index, status.track)
+        result = load_result(frame_path(folder, status.index, status.track))
+        owner = shown.get(key)
+        if owner is not None:
+            if owner not in windows:
+                windows[owner] = load_window(window_path(folder, owner[1], owner[0]))
+            result = with_joint(result, windows[owner])
+        results[key] = result
+    return results
+
+
 @timed("export")
 def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu") -> dict:
     """Write every export of a run whose frames are fitted, ``summary.json`` last; return the summary."""
@@ -171,12 +207,7 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     # tsr.mp4 shows each frame as filmed, or (stabilised) the canvas as the camera renders it.
     size = (camera.width, camera.height) if config.camera.stabilised else (info.width, info.height)
     stream = with_backgrounds(video, config.video, info.frame_count, frames, background, motion)
-    windows = track_windows(statuses, config.joint.window, config.joint.overlap) if config.joint.enabled else []
-    # A window whose joint fit diverged was not saved, and one that explains its frames worse
-    # than their single-frame fits is not accepted: their frames keep the single-frame fits.
-    saved = [w for w in windows if window_path(folder, w[0], w[1][0]).is_file()]
-    accepted = [window_key(w) for w in saved if load_window(window_path(folder, w[0], w[1][0])).accepted]
-    shown = shown_windows(windows, accepted)
+    saved, shown = run_windows(folder, statuses, config)
     diameter = record["object_diameter"]
     name = printable(video.stem)
     with Recorder(folder / RECORDING, camera, name, subframes=tsr) as recorder:

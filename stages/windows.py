@@ -14,7 +14,8 @@ a track keeps one shape. Each window's frames are then refined from its fit (``j
 those whose streak touched another object's, for their texture only).
 
 Every export then reads a frame's state from the window that covers it best (the one whose
-middle is nearest, :func:`frame_windows`).
+middle is nearest, :func:`frame_windows`), where that window was accepted; else from the frame's
+single-frame fit (:func:`shown_windows`).
 """
 
 from __future__ import annotations
@@ -40,9 +41,7 @@ from sfb_video.results import (
     FrameResult,
     SavedWindow,
     load_result,
-    load_results,
     load_window,
-    load_windows,
     save_window,
 )
 from sfb_video.run_folder import frame_path, window_path
@@ -105,6 +104,7 @@ def shown_windows(
     is not among the ``accepted`` keys: such a frame keeps its single-frame fit. A neighbour
     window that also covers it was never judged there (only on the frames it stands for), and
     its pose there may be far off."""
+    accepted = set(accepted)
     return {key: first for key, first in frame_windows(windows).items() if first in accepted}
 
 
@@ -127,17 +127,6 @@ def with_joint(result: FrameResult, window: SavedWindow) -> FrameResult:
         losses=joint.frame_losses(result.index),
         curve=joint.curve,
     )
-
-
-def final_results(folder: Path) -> dict[tuple[int, int], FrameResult]:
-    """Every object fitted in a run, by (frame index, track), as its outputs show it: from the
-    window that stands for it where an accepted joint fit was saved, else its single-frame fit
-    (:func:`shown_windows`)."""
-    windows = {w.key: w for w in load_windows(folder)}
-    accepted = [k for k, w in windows.items() if w.accepted]
-    owner = shown_windows([(w.track, w.frames) for w in windows.values()], accepted)
-    results = load_results(folder)
-    return {k: with_joint(r, windows[owner[k]]) if k in owner else r for k, r in results.items()}
 
 
 def shared_boxes(
@@ -190,7 +179,7 @@ def window_frame(
     return WindowFrame(frame.index, crop, masks)
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class ObjectPath:
     """Where one object fitted in a frame can be (``mask``, (H, W) bool,
     :func:`~sfb_video.stages.composite.path_mask`), each pixel's distance from its projected
@@ -209,7 +198,8 @@ class ObjectPath:
         if abs(float(self.direction @ other.direction)) < math.cos(math.radians(PARALLEL_DEG)):
             return False
         centre = other.distance < 0.5
-        return bool((centre & self.mask).sum() >= 0.5 * centre.sum())
+        on_frame = int(centre.sum())  # none: its centre's path lies off the frame
+        return on_frame > 0 and int((centre & self.mask).sum()) >= 0.5 * on_frame
 
 
 def object_paths(results: dict[int, FrameResult], camera: PinholeCamera) -> dict[int, ObjectPath]:
