@@ -502,13 +502,19 @@ class Core:
         return float(along.min()), float(along.max())
 
 
+def parallel(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two (2,) unit directions in the image differ by at most :data:`PARALLEL_DEG`
+    (either way along a line)."""
+    return math.degrees(math.acos(min(1.0, abs(float(a @ b))))) <= PARALLEL_DEG
+
+
 def apart(a: Core, b: Core) -> bool:
     """Whether two strong cores of one blob are two objects' streaks: parallel
     (:data:`PARALLEL_DEG`), beside each other (their centres more than half their mean width apart
     across the longer one's axis: not a streak cut in a row by a fence's wire) and one ahead of the
     other (their extents along it share less than :data:`ALIGNED` of the shorter: not a ring's two
     sides)."""
-    if math.degrees(math.acos(min(1.0, abs(float(a.axis @ b.axis))))) > PARALLEL_DEG:
+    if not parallel(a.axis, b.axis):
         return False
     ea, eb = a.extent(a.axis, a.centre), b.extent(a.axis, a.centre)
     longer = a if ea[1] - ea[0] >= eb[1] - eb[0] else b

@@ -21,7 +21,6 @@ single-frame fit (:func:`shown_windows`).
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 from collections.abc import Callable, Collection, Iterator
 from pathlib import Path
@@ -46,7 +45,7 @@ from sfb_video.results import (
 )
 from sfb_video.run_folder import frame_path, window_path
 from sfb_video.stages.composite import fit_quality, object_radius, path_mask
-from sfb_video.stages.detect import PARALLEL_DEG
+from sfb_video.stages.detect import parallel
 from sfb_video.stages.types import FrameStatus, FrameWithBackground, Window
 from sfb_video.timing import timed
 
@@ -191,11 +190,9 @@ class ObjectPath:
     direction: np.ndarray | None
 
     def beside(self, other: ObjectPath) -> bool:
-        """Whether ``other`` runs beside this path (within :data:`PARALLEL_DEG`, not across it)
-        and within it: at least half its centre's path inside this one's ``mask``."""
-        if self.direction is None or other.direction is None:
-            return False
-        if abs(float(self.direction @ other.direction)) < math.cos(math.radians(PARALLEL_DEG)):
+        """Whether ``other`` runs beside this path (:func:`~sfb_video.stages.detect.parallel`,
+        not across it) and within it: at least half its centre's path inside this one's ``mask``."""
+        if self.direction is None or other.direction is None or not parallel(self.direction, other.direction):
             return False
         centre = other.distance < 0.5
         on_frame = int(centre.sum())  # none: its centre's path lies off the frame
@@ -226,14 +223,14 @@ def others_region(track: int, paths: dict[int, ObjectPath], apart: Collection[in
     streaks touched no other's in the frame (their blobs were their own, or split apart).
 
     Where another path overlaps this track's own, the overlap stays this object's: where the
-    other's streak passes across this one's, a hole in it would cost the fit more than the other's
-    streak does. But for a neighbour apart from this object that runs beside its path and lies
-    within it (:meth:`ObjectPath.beside`), each pixel goes to the path whose centre passes nearer: a fitted
-    path's capsule is as wide as the object's furthest vertex, often far wider than its streak,
-    and can hold a neighbour's streak whole (falling_three's frame 11: the window took the
-    neighbours in and drew the three as one smear). Not for every overlap: where two streaks
-    touch (two objects crossing), a single-frame fit's path can come out beside the other's
-    though the objects cross, and its centre then takes this object's streak away.
+    other's streak passes across this one's, a hole in it would cost the fit more than the
+    other's streak does. But for a neighbour apart from this object that runs beside its path
+    and lies within it (:meth:`ObjectPath.beside`), each pixel goes to the path whose centre
+    passes nearer: a fitted path's capsule is as wide as the object's furthest vertex, often far
+    wider than its streak, and can hold a neighbour's streak whole (falling_three's frame 11: the
+    window took the neighbours in and drew the three as one smear). Not for every overlap: where
+    two streaks touch (two objects crossing), a single-frame fit's path can come out beside the
+    other's though the objects cross, and its centre then takes this object's streak away.
     """
     own = paths[track]
     region = torch.zeros_like(own.mask)
@@ -369,11 +366,11 @@ def fit_windows(
         keys = [(frame.index, t) for t in sorted(needed.get(frame.index, ()))]
         results = {t: single((frame.index, t)) for t in fitted[frame.index]} if keys else {}
         paths = object_paths(results, camera) if len(results) > 1 else {}
+        apart = {t for t in paths if (frame.index, t) not in touched}
         for key in keys:
             box = boxes[key]
             assert box is not None  # a fitted object has its detection
             # Several objects in the frame: the others show the background.
-            apart = {t for t in paths if (frame.index, t) not in touched}
             seen = frame.without(others_region(key[1], paths, apart)) if paths else frame
             crops[key] = window_frame(seen, box, results[key[1]], camera, config, device)
         ready = [w for w in pending if all((i, w[0]) in crops for i in w[1])]
