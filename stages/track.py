@@ -44,6 +44,7 @@ from sfb_video.stages.detect import (
     frame_blobs,
     gate_distance,
     moving_mask,
+    parallel,
     pick_blob,
     share_out,
     still_there,
@@ -207,12 +208,15 @@ def follow(
         blob is near.
     """
     best: tuple[float, tuple[int, int], FrameResult, Prediction] | None = None
-    for prediction, option in predictions:
-        picked = pick_blob(found, prediction, config.detect, taken)
-        if picked is not None:
-            distance = _miss(found, picked[0], prediction)
-            if best is None or distance < best[0]:
-                best = (distance, picked, option, prediction)
+    for fallback in (False, True):
+        for prediction, option in predictions:
+            picked = None if prediction.fallback != fallback else pick_blob(found, prediction, config.detect, taken)
+            if picked is not None:
+                distance = _miss(found, picked[0], prediction)
+                if best is None or distance < best[0]:
+                    best = (distance, picked, option, prediction)
+        if best is not None:
+            break
     return None if best is None else (best[1], best[2], best[3])
 
 
@@ -300,6 +304,33 @@ def follow_box(
     return detection, None if best is None else best[1]
 
 
+LAG_DIAMETERS = 2.0
+"""Object diameters by which a track's 3D guess must fall short of its image-pace guess for the
+pace to be followed first (:func:`lags`)."""
+
+
+def lags(three_d: Prediction, paced: Prediction, last: tuple[float, float]) -> bool:
+    """Whether the 3D guess falls short of the image-pace guess along the pace's line: more than
+    :data:`LAG_DIAMETERS` behind it, and no further on from the ``last`` streak's centre, nor
+    turned off its line by more than :data:`~sfb_video.stages.detect.PARALLEL_DEG` (a ball
+    swung on a circle: there the 3D guess turns as the object turned, and the pace does not)."""
+    gap = math.hypot(three_d.centre[0] - paced.centre[0], three_d.centre[1] - paced.centre[1])
+    if gap <= LAG_DIAMETERS * max(paced.diameter, 1.0):
+        return False
+    step = np.subtract(three_d.centre, last)
+    pace = np.subtract(paced.centre, last)
+    if np.linalg.norm(step) < max(paced.diameter, 1.0):
+        return True  # hardly on from the last streak: its direction says nothing
+    on = float(step @ pace) > 0 and np.linalg.norm(step) < np.linalg.norm(pace)
+    return on and parallel(step / np.linalg.norm(step), pace / np.linalg.norm(pace))
+
+
+def _at_edge(box: Box, camera: PinholeCamera) -> bool:
+    """Whether ``box`` (x, y, w, h) touches the edge of ``camera``'s image."""
+    x, y, w, h = box
+    return x <= 0 or y <= 0 or x + w >= camera.width or y + h >= camera.height
+
+
 MAX_COAST = 5
 """Frames a track goes on through without a clean fit of its own: its streak merged into another
 track's blob, or shared out with it (two objects crossing). Three objects touching in turn share
@@ -385,8 +416,26 @@ class Tracker:
             # two. One frame's fit is unsure of its speed (a longer object moving less blurs
             # alike) and a falling object gathers speed; follow keeps the guess whose blob lands
             # nearer (falling_two: the 3D guess lagged one object by 88 px, and took the other).
-            predicted.append((self._glided(index), self.previous))
+            glided = self._glided(index)
+            last = predict(self.previous.state.motion, self.camera).centre
+            if self._clean_pace() and lags(predicted[0][0], glided, last):
+                # The two guesses part: the image pace from two whole streaks is the surer, and
+                # the lagging 3D guess would land on whatever lies behind (falling_three frame
+                # 13: the grey object's lagged onto the red end's streak and took it). It is
+                # still followed where the pace finds nothing: an object that landed stops.
+                three_d, option = predicted[0]
+                return [(glided, self.previous), (dataclasses.replace(three_d, fallback=True), option)]
+            predicted.append((glided, self.previous))
         return predicted
+
+    def _clean_pace(self) -> bool:
+        """Whether the image pace (:meth:`_glided`) comes from two whole streaks: neither box
+        touches the frame's edge (falling_three frame 9: a streak cut off there, its pace is
+        the cut's, not the object's)."""
+        assert self.previous is not None and self.earlier is not None
+        return not (
+            _at_edge(self.previous.detection_box, self.camera) or _at_edge(self.earlier.detection_box, self.camera)
+        )
 
     def _glided(self, index: int) -> Prediction:
         """Frame ``index``'s prediction past frames without a clean fit: the last clean streak

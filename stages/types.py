@@ -130,12 +130,14 @@ class Prediction:
     """Where a tracked object should appear: the (u, v) pixel centre of its next exposure's
     streak, its apparent diameter in pixels, its track's chromaticity (of its blobs so far), and
     the (u, v) ends of the streak (where two tracks' streaks touch, their pixels are shared out
-    by nearness to them)."""
+    by nearness to them), and whether it is a ``fallback``: followed only where the track's
+    other guesses find no blob."""
 
     centre: tuple[float, float]
     diameter: float
     colour: tuple[float, float, float] | None = None
     ends: tuple[tuple[float, float], tuple[float, float]] | None = None
+    fallback: bool = False
 
 
 @dataclass(frozen=True)

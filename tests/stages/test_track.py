@@ -185,6 +185,42 @@ def test_a_track_goes_on_where_its_streak_moved_on_though_its_fits_lag_on_speed(
     assert math.hypot(x - own[0], y - own[1]) < 1.5, (x, y, own, other)
 
 
+def test_a_track_paced_by_two_whole_streaks_follows_the_pace_over_a_lagging_3d_guess() -> None:
+    # falling_three frame 13: the grey object's 3D guess lagged onto the red end's streak, which
+    # lay nearer it than the grey object's own blob lay to its paced guess, and took it.
+    config = load_config("fast")
+    tracker = Tracker(CAMERA, config)
+    whole = (100, 100, 8, 8)  # neither streak cut off at the frame's edge
+    tracker.earlier, tracker.previous = (
+        dataclasses.replace(_fitted(0, (0.0, -3.0, 8.0), (0.0, 0.1, 0.0)), detection_box=whole),
+        dataclasses.replace(_fitted(1, (0.0, -0.5, 8.0), (0.0, 0.1, 0.0)), detection_box=whole),
+    )
+    tracker.length, tracker.number = 2, 0
+    continued_3d = predict(continued(tracker.previous, tracker.earlier, 2, config.video.exposure_fraction), CAMERA)
+    lagging, paced = continued_3d.centre, tracker._glided(2).centre
+    radius = 0.4 * continued_3d.diameter
+    own, other = (paced[0] + 0.8 * radius, paced[1] + 0.8 * radius), lagging  # the other lies on its guess
+    yy, xx = np.mgrid[: CAMERA.height, : CAMERA.width]
+
+    def followed_to(centres: list[tuple[float, float]]) -> tuple[float, float] | None:
+        moving = np.zeros((CAMERA.height, CAMERA.width), bool)
+        for cx, cy in centres:
+            moving |= (xx - cx) ** 2 + (yy - cy) ** 2 <= radius**2
+        found = frame_blobs(torch.from_numpy(moving), config.detect)
+        followed = follow(found, tracker.predictions(2), config)
+        return None if followed is None else tuple(found.centroids[followed[0][0]])
+
+    x, y = followed_to([own, other])
+    assert math.hypot(x - own[0], y - own[1]) < 1.5
+    # Nothing where the pace leads (an object that landed stops): the 3D guess is still followed.
+    x, y = followed_to([other])
+    assert math.hypot(x - other[0], y - other[1]) < 1.5
+    # A streak cut off at the frame's edge paces nothing: the nearer guess's blob, as before.
+    tracker.previous = dataclasses.replace(tracker.previous, detection_box=(0, 100, 8, 8))
+    x, y = followed_to([own, other])
+    assert math.hypot(x - other[0], y - other[1]) < 1.5
+
+
 def test_a_track_of_one_frame_chooses_after_a_longer_one_that_would_take_its_blob() -> None:
     # falling_pen.avi: the pen's streak came in two pieces; the second started a track, whose
     # guess at its direction landed nearer the next frame's blob than the pen's track did.
