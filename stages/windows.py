@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from sfb_video.config import Config
-from sfb_video.crop import box_union, make_crop, masks_onto
+from sfb_video.crop import Box, box_union, make_crop, masks_onto
 from sfb_video.errors import DivergenceError
 from sfb_video.fitting.path import Seed
 from sfb_video.fitting.window import WindowFrame, fit_window, refine_frames
@@ -148,6 +148,22 @@ def shared_boxes(
     return out
 
 
+def still_touched(statuses: list[FrameStatus]) -> set[tuple[int, int]]:
+    """The (frame index, track) of the fitted objects whose streak touched another fitted
+    object's. A track dropped as too short (:func:`~sfb_video.stages.track.short_tracks_dropped`)
+    gives its share of a blob back: falling_three's frame 10, a two-frame track born of a streak
+    cut off at the frame's edge took the lower half of the pale end's streak; held as touched,
+    the pale end's window saw half its streak, and the neighbour's window the other half."""
+    touched = {(s.index, s.track): s.box for s in statuses if s.touched and s.box is not None}
+    blobs = shared_boxes(touched)
+    fitted = {(s.index, s.track) for s in statuses if s.status == "fitted"}
+    return {
+        key
+        for key in touched.keys() & fitted
+        if any(other != key and other[0] == key[0] and blobs[other] == blobs[key] for other in fitted & touched.keys())
+    }
+
+
 def _touch(a: tuple[int, int, int, int], b: tuple[int, int, int, int], gap: int = 2) -> bool:
     return (
         a[0] <= b[0] + b[2] + gap
@@ -183,11 +199,13 @@ class ObjectPath:
     """Where one object fitted in a frame can be (``mask``, (H, W) bool,
     :func:`~sfb_video.stages.composite.path_mask`), each pixel's distance from its projected
     centre's path (``distance``, (H, W) float32 pixels), and that path's (2,) unit ``direction``
-    in the image (None for an object that hardly moves)."""
+    in the image (None for an object that hardly moves), and its detected blob's ``box``, (H, W)
+    bool."""
 
     mask: torch.Tensor
     distance: torch.Tensor
     direction: np.ndarray | None
+    box: torch.Tensor
 
     def beside(self, other: ObjectPath) -> bool:
         """Whether ``other`` runs beside this path (:func:`~sfb_video.stages.detect.parallel`,
@@ -199,9 +217,12 @@ class ObjectPath:
         return on_frame > 0 and int((centre & self.mask).sum()) >= 0.5 * on_frame
 
 
-def object_paths(results: dict[int, FrameResult], camera: PinholeCamera) -> dict[int, ObjectPath]:
+def object_paths(
+    results: dict[int, FrameResult], camera: PinholeCamera, boxes: dict[int, Box] | None = None
+) -> dict[int, ObjectPath]:
     """Per track, the :class:`ObjectPath` of its object fitted in one frame (``results``, by
-    track) in ``camera``'s image."""
+    track) in ``camera``'s image; ``boxes``: its blob's box where not the fit's detection box (a
+    blob shared with a track since dropped, :func:`still_touched`)."""
     paths = {}
     for track, result in results.items():
         motion = result.state.motion
@@ -212,7 +233,10 @@ def object_paths(results: dict[int, FrameResult], camera: PinholeCamera) -> dict
         step = (uv[1] - uv[0]).detach().cpu().double().numpy()
         length = float(np.linalg.norm(step))
         direction = step / length if length >= 1 else None
-        paths[track] = ObjectPath(torch.from_numpy(mask), torch.from_numpy(distance), direction)
+        x, y, w, h = (boxes or {}).get(track, result.detection_box)
+        box = torch.zeros(mask.shape, dtype=torch.bool)
+        box[y : y + h, x : x + w] = True
+        paths[track] = ObjectPath(torch.from_numpy(mask), torch.from_numpy(distance), direction, box)
     return paths
 
 
@@ -224,21 +248,29 @@ def others_region(track: int, paths: dict[int, ObjectPath], apart: Collection[in
 
     Where another path overlaps this track's own, the overlap stays this object's: where the
     other's streak passes across this one's, a hole in it would cost the fit more than the
-    other's streak does. But for a neighbour apart from this object that runs beside its path
-    and lies within it (:meth:`ObjectPath.beside`), each pixel goes to the path whose centre
-    passes nearer: a fitted path's capsule is as wide as the object's furthest vertex, often far
-    wider than its streak, and can hold a neighbour's streak whole (falling_three's frame 11: the
-    window took the neighbours in and drew the three as one smear). Not for every overlap: where
-    two streaks touch (two objects crossing), a single-frame fit's path can come out beside the
-    other's though the objects cross, and its centre then takes this object's streak away.
+    other's streak does. But a fitted path's capsule is as wide as the object's furthest vertex,
+    often far wider than its streak, and a poor single-frame fit's runs on past its streak: it
+    can hold a neighbour's streak whole (falling_three's frame 11: the window took the
+    neighbours in and drew the three as one smear). So where neither streak touched another's,
+    the overlap is this object's only inside its blob's box (its streak lies there), and there,
+    for a neighbour that runs beside its path and lies within it (:meth:`ObjectPath.beside`),
+    only the pixels nearer its own centre's path; and the neighbour's box outside this one's is
+    the neighbour's, where its fit's path does not cover its streak. Not where two streaks touch
+    (two objects crossing): a single-frame fit's path can come out beside the other's though
+    the objects cross, and its centre then takes this object's streak away.
     """
     own = paths[track]
     region = torch.zeros_like(own.mask)
     for t, other in paths.items():
-        if t != track:
-            nearer = track in apart and t in apart and own.beside(other)
-            kept = own.mask & (own.distance <= other.distance) if nearer else own.mask
-            region |= other.mask & ~kept
+        if t == track:
+            continue
+        kept = own.mask
+        if track in apart and t in apart:
+            kept = kept & own.box
+            if own.beside(other):
+                kept = kept & (own.distance <= other.distance)
+            region |= other.box & ~own.box
+        region |= other.mask & ~kept
     return region
 
 
@@ -345,8 +377,9 @@ def fit_windows(
             done[window_key(window)] = load_window(path)
     pending = [w for w in windows if window_key(w) not in done]
     boxes = {(s.index, s.track): s.box for s in statuses if s.status == "fitted"}
-    touched = {(s.index, s.track) for s in statuses if s.status == "fitted" and s.touched}
-    boxes |= shared_boxes({k: b for k, b in boxes.items() if k in touched and b is not None})
+    touched = still_touched(statuses)
+    shared = shared_boxes({(s.index, s.track): s.box for s in statuses if s.touched and s.box is not None})
+    boxes |= {k: b for k, b in shared.items() if k in boxes and b != boxes[k]}
     fitted: dict[int, list[int]] = {}  # frame index -> its fitted tracks
     for index, track in boxes:
         if track is not None:
@@ -365,7 +398,8 @@ def fit_windows(
     for frame in frames if pending else ():
         keys = [(frame.index, t) for t in sorted(needed.get(frame.index, ()))]
         results = {t: single((frame.index, t)) for t in fitted[frame.index]} if keys else {}
-        paths = object_paths(results, camera) if len(results) > 1 else {}
+        own_boxes = {t: box for t in results if (box := boxes[frame.index, t]) is not None}
+        paths = object_paths(results, camera, own_boxes) if len(results) > 1 else {}
         apart = {t for t in paths if (frame.index, t) not in touched}
         for key in keys:
             box = boxes[key]

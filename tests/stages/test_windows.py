@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -263,9 +264,9 @@ def test_each_window_is_told_which_of_its_frames_touched_another_track(
 ) -> None:
     config = load_config("fast")
     statuses = [
-        FrameStatus(i, "fitted", (0, 0, 4, 4), track=t, touched=i in (3, 4) and t == 0)
+        FrameStatus(i, "fitted", (0, 0, 4, 4), track=t, touched=i in (3, 4) and t < 2)
         for i in range(5)
-        for t in (0, 1)
+        for t in (0, 1, 2)
     ]
     frames = [FrameWithBackground(i, torch.zeros(3, 8, 8), torch.zeros(3, 8, 8)) for i in range(5)]
     monkeypatch.setattr(windows, "load_result", lambda path: None)
@@ -280,7 +281,22 @@ def test_each_window_is_told_which_of_its_frames_touched_another_track(
 
     monkeypatch.setattr(windows, "fit_track_window", fit)
     windows.fit_windows(iter(frames), tmp_path, statuses, CAMERA, config, torch.device("cpu"))
-    assert told == {0: {3, 4}, 1: set()}
+    assert told == {0: {3, 4}, 1: {3, 4}, 2: set()}
+
+
+def test_a_dropped_track_gives_its_share_of_a_blob_back() -> None:
+    # falling_three frame 10: a two-frame track, dropped as too short, had taken the lower half
+    # of the pale end's streak; the pale end's windows saw only the upper half.
+    statuses = [
+        FrameStatus(10, "fitted", (323, 38, 28, 54), track=1, touched=True),
+        FrameStatus(10, "dropped", (332, 68, 20, 28), track=2, touched=True),
+        FrameStatus(10, "fitted", (344, 52, 32, 68), track=3),
+        FrameStatus(11, "fitted", (100, 100, 20, 20), track=1, touched=True),
+        FrameStatus(11, "fitted", (110, 115, 20, 20), track=3, touched=True),
+        FrameStatus(11, "fitted", (200, 200, 9, 9), track=4, touched=True),
+    ]
+    # Frame 11: tracks 1 and 3 still share one blob; track 4's part touches neither.
+    assert windows.still_touched(statuses) == {(11, 1), (11, 3)}
 
 
 def test_a_window_sees_the_other_objects_of_its_frames_as_the_background(
@@ -349,7 +365,8 @@ def test_a_neighbour_beside_a_wide_path_is_background_for_its_window() -> None:
         )
         for track, (x, scale) in {0: (0.0, 1.0), 1: (0.5, 0.2)}.items()
     }
-    results = {t: type("Result", (), {"state": s})() for t, s in states.items()}
+    whole = (0, 0, CAMERA.width, CAMERA.height)
+    results = {t: type("Result", (), {"state": s, "detection_box": whole})() for t, s in states.items()}
     paths = windows.object_paths(results, CAMERA)  # type: ignore[arg-type]
     neighbour = paths[1].mask
     assert bool((neighbour & paths[0].mask).float().mean() > 0.5 * neighbour.float().mean())  # inside the wide path
@@ -360,6 +377,33 @@ def test_a_neighbour_beside_a_wide_path_is_background_for_its_window() -> None:
     # Streaks that touched (objects crossing, whose fitted paths may look level): the overlap
     # stays this object's.
     assert not bool((windows.others_region(0, paths, apart={1}) & paths[0].mask).any())
+
+
+def _path(box: tuple[int, int, int, int], covered: tuple[int, int, int, int]) -> windows.ObjectPath:
+    """An object's path on a 40 x 40 frame: its blob's ``box``, and the part of it its fitted
+    path ``covered`` (both x, y, w, h); its centre runs down the middle of that part."""
+
+    def mask(b: tuple[int, int, int, int]) -> torch.Tensor:
+        m = torch.zeros(40, 40, dtype=torch.bool)
+        m[b[1] : b[1] + b[3], b[0] : b[0] + b[2]] = True
+        return m
+
+    columns = torch.arange(40, dtype=torch.float32).expand(40, 40)
+    distance = (columns - (covered[0] + covered[2] / 2)).abs()
+    return windows.ObjectPath(mask(covered), distance, np.array([0.0, 1.0]), mask(box))
+
+
+def test_a_neighbours_blob_past_its_fitted_path_is_background_for_its_window() -> None:
+    # falling_three frame 10: the pale end's fit covered the upper half of its streak only; the
+    # lower half lay in the grey object's window's crop, and its fit grew a white side there.
+    own = _path((20, 0, 10, 40), (18, 0, 14, 40))  # the fitted path a little wider than the blob
+    pale = _path((8, 0, 14, 40), (8, 0, 14, 20))  # its fit covers the upper half only
+    hidden = windows.others_region(0, {0: own, 1: pale}, apart={0, 1})
+    assert bool(hidden[25:, 8:20].all())  # the neighbour's lower half, outside this blob's box
+    assert not bool(hidden[:, 20:30].any())  # this object's blob, its box
+    # Where the streaks touched, the neighbour is only its fitted path.
+    touched = windows.others_region(0, {0: own, 1: pale}, apart={0})
+    assert not bool(touched[25:, :].any())
 
 
 def test_a_touched_frame_is_cropped_around_the_whole_blob_its_streak_shares() -> None:
