@@ -691,11 +691,16 @@ def _shared(
     """Where ``tracker``'s object is in a blob other tracks took first (their streaks touch or
     cross), the blob shared out among them all by nearness to their predicted streaks: this
     track's claim, the others' narrowed to their own parts. None where it cannot be shared (one
-    of them has no prediction, or a part would be too small): then the track takes the best blob
-    left, or coasts through the frame (a track of one frame ends).
+    of them has no prediction, or a part would be too small), or where ``tracker`` is a track
+    of one frame, which only guesses its direction: then the track takes the best blob left, or
+    coasts through the frame (a track of one frame ends). falling_three's frame 10: the red
+    end's track, begun on its streak cut off at the frame's edge, took the lower half of the
+    pale end's blob by a wrong guess, and the pale end was fitted on the upper half.
 
     Three at once: the slow-beside scenario's pen merges into the blob that the first and second
     objects already share (``benchmarks.multi_object``)."""
+    if tracker.length < 2:
+        return None
     (label, _), _, prediction = crossing
     first = [c for c in claims if c.label == label]
     predicted = [c.prediction for c in first if c.prediction is not None]

@@ -290,8 +290,13 @@ def test_a_blob_three_streaks_touch_in_is_shared_out_among_all_three() -> None:
     found = frame_blobs(torch.from_numpy(moving), config.detect)
     streaks = [Prediction((x + 12.5, 20.0), 10.0, None, ((x + 5.0, 20.0), (x + 20.0, 20.0))) for x in (5, 35, 65)]
     first, second, third = (Tracker(CAMERA, config) for _ in range(3))
+    second.length = third.length = 2
     last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
     claims = [_Claim(first, 1, 0, streaks[0])]
+    # A track of one frame only guesses its direction: it shares no blob (falling_three frame
+    # 10: the red end's track took the lower half of the pale end's streak so).
+    assert _shared(found, ((1, 0), last, streaks[1]), claims, Tracker(CAMERA, config), config) is None
+    assert claims[0].part is None and not claims[0].shared_with
     claims.append(_shared(found, ((1, 0), last, streaks[1]), claims, second, config))
     shared = _shared(found, ((1, 0), last, streaks[2]), claims, third, config)
     assert shared is not None
