@@ -194,13 +194,16 @@ def follow(
     predictions: list[tuple[Prediction, FrameResult]],
     config: Config,
     taken: frozenset[int] = frozenset(),
+    fallback: bool = True,
 ) -> tuple[tuple[int, int], FrameResult, Prediction] | None:
     """Find a track's object among a frame's blobs but the ``taken`` ones (other tracks'), near
     where the track predicts it (:meth:`Tracker.predictions`).
 
-    When the track's time direction is not known yet (its first frame), there are two
-    predictions, and the one whose prediction lands nearer its blob is kept. Blobs of the
-    track's colour are preferred.
+    Of several predictions (the two directions of a track's first frame, or its 3D and image-pace
+    guesses), the one whose prediction lands nearer its blob is kept; a ``fallback`` prediction
+    only where the others find no blob (and not at all with ``fallback`` False: a second look,
+    past the blob the first found, keeps to the guesses that found it). Blobs of the track's
+    colour are preferred.
 
     Returns:
         the blob (its label and how many others could have been it, :func:`pick_blob`), the
@@ -208,9 +211,9 @@ def follow(
         blob is near.
     """
     best: tuple[float, tuple[int, int], FrameResult, Prediction] | None = None
-    for fallback in (False, True):
+    for tier in (False, True) if fallback else (False,):
         for prediction, option in predictions:
-            picked = None if prediction.fallback != fallback else pick_blob(found, prediction, config.detect, taken)
+            picked = None if prediction.fallback != tier else pick_blob(found, prediction, config.detect, taken)
             if picked is not None:
                 distance = _miss(found, picked[0], prediction)
                 if best is None or distance < best[0]:
@@ -311,9 +314,10 @@ pace to be followed first (:func:`lags`)."""
 
 def lags(three_d: Prediction, paced: Prediction, last: tuple[float, float]) -> bool:
     """Whether the 3D guess falls short of the image-pace guess along the pace's line: more than
-    :data:`LAG_DIAMETERS` behind it, and no further on from the ``last`` streak's centre, nor
-    turned off its line by more than :data:`~sfb_video.stages.detect.PARALLEL_DEG` (a ball
-    swung on a circle: there the 3D guess turns as the object turned, and the pace does not)."""
+    :data:`LAG_DIAMETERS` of the object's diameters from it, and either hardly on from the
+    ``last`` streak's centre (under one diameter), or on from it the pace's way, less far, and
+    within :data:`~sfb_video.stages.detect.PARALLEL_DEG` of its line (a ball swung on a circle:
+    there the 3D guess turns as the object turned, and the pace does not)."""
     gap = math.hypot(three_d.centre[0] - paced.centre[0], three_d.centre[1] - paced.centre[1])
     if gap <= LAG_DIAMETERS * max(paced.diameter, 1.0):
         return False
@@ -394,8 +398,10 @@ class Tracker:
 
     def predictions(self, index: int) -> list[tuple[Prediction, FrameResult]]:
         """Where frame ``index``'s object should be, with the last frame in the direction that
-        predicts it: one prediction, two while the track's direction is open, none without a
-        track that goes on into this frame."""
+        predicts it: its two directions' guesses while the track's direction is open; from its
+        second frame on, its 3D guess and its image-pace guess (the 3D guess a fallback where it
+        :func:`lags`), or the image-pace guess alone while it coasts; none without a track that
+        goes on into this frame."""
         if self.previous is not None:
             gap = index - self.previous.index
             if gap != 1 + self.coasting:
@@ -572,7 +578,7 @@ def track_and_fit(
         asked = [(t, t.predictions(frame.index)) for t in live]
         wants = [(t, follow(found, p, config)) for t, p in asked]
         elsewhere = [
-            w is not None and follow(found, p, config, frozenset({w[0][0]})) is not None
+            w is not None and follow(found, p, config, frozenset({w[0][0]}), w[2].fallback) is not None
             for (_, p), (_, w) in zip(asked, wants, strict=True)
         ]
         for k in _choosing_order(found, wants, elsewhere):
@@ -583,7 +589,7 @@ def track_and_fit(
                 # if it can be; else the best blob left, or none (the track coasts). But a blob
                 # left that lands nearer its prediction is its object: the other's only passed
                 # near (the lead's shred, the trail's blob where the lead was).
-                rest = follow(found, predictions, config, frozenset(taken))
+                rest = follow(found, predictions, config, frozenset(taken), followed[2].fallback)
                 if rest is not None and _miss(found, rest[0][0], rest[2]) < _miss(found, followed[0][0], followed[2]):
                     followed = rest
                 elif (claim := _shared(found, followed, objects, tracker, config)) is None:
@@ -691,18 +697,19 @@ def _shared(
     """Where ``tracker``'s object is in a blob other tracks took first (their streaks touch or
     cross), the blob shared out among them all by nearness to their predicted streaks: this
     track's claim, the others' narrowed to their own parts. None where it cannot be shared (one
-    of them has no prediction, or a part would be too small), or where ``tracker`` is a track
-    of one frame, which only guesses its direction: then the track takes the best blob left, or
-    coasts through the frame (a track of one frame ends). falling_three's frame 10: the red
-    end's track, begun on its streak cut off at the frame's edge, took the lower half of the
-    pale end's blob by a wrong guess, and the pale end was fitted on the upper half.
+    of them has no prediction, or a part would be too small), or where ``tracker`` or one of
+    them is a track of one frame, which only guesses its direction: then the track takes the
+    best blob left, or coasts through the frame (a track of one frame ends). falling_three's
+    frame 10: the red end's track, begun on its streak cut off at the frame's edge, took the
+    lower half of the pale end's blob by a wrong guess, and the pale end was fitted on the
+    upper half.
 
     Three at once: the slow-beside scenario's pen merges into the blob that the first and second
     objects already share (``benchmarks.multi_object``)."""
-    if tracker.length < 2:
-        return None
     (label, _), _, prediction = crossing
     first = [c for c in claims if c.label == label]
+    if tracker.length < 2 or any(c.tracker.length < 2 for c in first):
+        return None
     predicted = [c.prediction for c in first if c.prediction is not None]
     if len(predicted) < len(first):
         return None

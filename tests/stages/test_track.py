@@ -202,22 +202,26 @@ def test_a_track_paced_by_two_whole_streaks_follows_the_pace_over_a_lagging_3d_g
     own, other = (paced[0] + 0.8 * radius, paced[1] + 0.8 * radius), lagging  # the other lies on its guess
     yy, xx = np.mgrid[: CAMERA.height, : CAMERA.width]
 
-    def followed_to(centres: list[tuple[float, float]]) -> tuple[float, float] | None:
+    def followed_to(centres: list[tuple[float, float]], taken: frozenset[int] = frozenset()) -> tuple[float, ...]:
+        """The centre of the blob followed, and whether a fallback guess found it."""
         moving = np.zeros((CAMERA.height, CAMERA.width), bool)
         for cx, cy in centres:
             moving |= (xx - cx) ** 2 + (yy - cy) ** 2 <= radius**2
         found = frame_blobs(torch.from_numpy(moving), config.detect)
-        followed = follow(found, tracker.predictions(2), config)
-        return None if followed is None else tuple(found.centroids[followed[0][0]])
+        followed = follow(found, tracker.predictions(2), config, taken)
+        assert followed is not None
+        return (*found.centroids[followed[0][0]], followed[2].fallback)
 
-    x, y = followed_to([own, other])
-    assert math.hypot(x - own[0], y - own[1]) < 1.5
+    x, y, fallback = followed_to([own, other])
+    assert math.hypot(x - own[0], y - own[1]) < 1.5 and not fallback
     # Nothing where the pace leads (an object that landed stops): the 3D guess is still followed.
-    x, y = followed_to([other])
-    assert math.hypot(x - other[0], y - other[1]) < 1.5
+    reach = config.detect.gate * tracker._glided(2).diameter + radius  # gate_distance's
+    far = (paced[0], paced[1] - reach - 2)  # beyond the paced guess's reach, in the 3D guess's
+    x, y, fallback = followed_to([far])
+    assert math.hypot(x - far[0], y - far[1]) < 1.5 and fallback
     # A streak cut off at the frame's edge paces nothing: the nearer guess's blob, as before.
     tracker.previous = dataclasses.replace(tracker.previous, detection_box=(0, 100, 8, 8))
-    x, y = followed_to([own, other])
+    x, y, _ = followed_to([own, other])
     assert math.hypot(x - other[0], y - other[1]) < 1.5
 
 
@@ -290,12 +294,15 @@ def test_a_blob_three_streaks_touch_in_is_shared_out_among_all_three() -> None:
     found = frame_blobs(torch.from_numpy(moving), config.detect)
     streaks = [Prediction((x + 12.5, 20.0), 10.0, None, ((x + 5.0, 20.0), (x + 20.0, 20.0))) for x in (5, 35, 65)]
     first, second, third = (Tracker(CAMERA, config) for _ in range(3))
-    second.length = third.length = 2
+    first.length = second.length = third.length = 2
     last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
     claims = [_Claim(first, 1, 0, streaks[0])]
     # A track of one frame only guesses its direction: it shares no blob (falling_three frame
     # 10: the red end's track took the lower half of the pale end's streak so).
     assert _shared(found, ((1, 0), last, streaks[1]), claims, Tracker(CAMERA, config), config) is None
+    first.length = 1  # nor with one: its part would be a guess too
+    assert _shared(found, ((1, 0), last, streaks[1]), claims, second, config) is None
+    first.length = 2
     assert claims[0].part is None and not claims[0].shared_with
     claims.append(_shared(found, ((1, 0), last, streaks[1]), claims, second, config))
     shared = _shared(found, ((1, 0), last, streaks[2]), claims, third, config)

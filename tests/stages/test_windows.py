@@ -299,6 +299,35 @@ def test_a_dropped_track_gives_its_share_of_a_blob_back() -> None:
     assert windows.still_touched(statuses) == {(11, 1), (11, 3)}
 
 
+def test_a_window_crops_around_the_share_a_dropped_track_gave_back(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    statuses = [FrameStatus(i, "fitted", (323, 38 + 10 * i, 28, 54), track=1, touched=i == 1) for i in range(3)] + [
+        FrameStatus(1, "dropped", (332, 100, 20, 28), track=2, touched=True)
+    ]
+    statuses += [FrameStatus(i, "fitted", (400, 40 + 10 * i, 20, 40), track=3) for i in range(3)]
+    frames = [FrameWithBackground(i, torch.zeros(3, 240, 480), torch.zeros(3, 240, 480)) for i in range(3)]
+    cropped: dict[tuple[int, int], tuple[int, int, int, int]] = {}
+    given: dict[int, dict[int, tuple[int, int, int, int]]] = {}
+
+    def crop(frame: FrameWithBackground, box: tuple[int, int, int, int], result: object, *args: object) -> None:
+        cropped[frame.index, result.track] = box  # type: ignore[attr-defined]
+
+    def paths(results: object, camera: object, boxes: dict[int, tuple[int, int, int, int]]) -> dict:
+        given[len(given)] = boxes
+        return {}
+
+    monkeypatch.setattr(windows, "load_result", lambda path: type("Result", (), {"track": int(path.stem[-2:])})())
+    monkeypatch.setattr(windows, "window_frame", crop)
+    monkeypatch.setattr(windows, "save_window", lambda *args: None)
+    monkeypatch.setattr(windows, "object_paths", paths)
+    monkeypatch.setattr(windows, "fit_track_window", lambda *a, **k: type("Saved", (), {"accepted": True})())
+    windows.fit_windows(iter(frames), tmp_path, statuses, CAMERA, load_config("fast"), torch.device("cpu"))
+    # Frame 1: the pale end's crop and its box as a neighbour hold the share given back.
+    assert cropped[1, 1] == (323, 48, 29, 80) and given[1][1] == (323, 48, 29, 80)
+    assert cropped[0, 1] == (323, 38, 28, 54) and cropped[1, 3] == (400, 50, 20, 40)
+
+
 def test_a_window_sees_the_other_objects_of_its_frames_as_the_background(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
