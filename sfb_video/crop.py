@@ -65,6 +65,14 @@ def mask_box(mask: np.ndarray) -> Box | None:
     return int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1)
 
 
+def box_mask(box: Box, size: tuple[int, int]) -> torch.Tensor:
+    """(H, W) bool, True inside ``box`` (x, y, w, h), for an image of ``size`` (H, W)."""
+    x, y, w, h = box
+    mask = torch.zeros(size, dtype=torch.bool)
+    mask[y : y + h, x : x + w] = True
+    return mask
+
+
 def largest_blob(mask: torch.Tensor) -> tuple[torch.Tensor, Box | None]:
     """The largest 8-connected blob of a boolean (H, W) mask, and its box (None if empty)."""
     count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.cpu().numpy().astype(np.uint8), connectivity=8)

@@ -29,7 +29,7 @@ import torch
 
 from sfb_video.atomic import atomic_write_bytes
 from sfb_video.config import Config, CropConfig
-from sfb_video.crop import Box, crop_box, mask_box
+from sfb_video.crop import Box, box_mask, crop_box, mask_box
 from sfb_video.defmo import INPUT_SIZE
 from sfb_video.errors import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
@@ -287,8 +287,7 @@ def follow_box(
     """
     x, y, w, h = box
     changed = difference_mask(frame.pixels, frame.background_pixels, config.detect, frame.known)[y : y + h, x : x + w]
-    blob = torch.zeros(frame.pixels.shape[1:], dtype=torch.bool)
-    blob[y : y + h, x : x + w] = True
+    blob = box_mask(box, frame.pixels.shape[1:])
     ys, xs = torch.nonzero(changed, as_tuple=True)
     if xs.numel() == 0:
         return Detection(frame.index, box, blob), None

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+from collections import Counter
 from collections.abc import Callable, Collection, Iterator
 from pathlib import Path
 
@@ -30,7 +31,7 @@ import numpy as np
 import torch
 
 from sfb_video.config import Config
-from sfb_video.crop import Box, box_union, make_crop, masks_onto
+from sfb_video.crop import Box, box_mask, box_union, make_crop, masks_onto
 from sfb_video.errors import DivergenceError
 from sfb_video.fitting.path import Seed
 from sfb_video.fitting.window import WindowFrame, fit_window, refine_frames
@@ -148,20 +149,20 @@ def shared_boxes(
     return out
 
 
-def still_touched(statuses: list[FrameStatus]) -> set[tuple[int, int]]:
-    """The (frame index, track) of the fitted objects whose streak touched another fitted
-    object's. A track dropped as too short (:func:`~sfb_video.stages.track.short_tracks_dropped`)
-    gives its share of a blob back: falling_three's frame 10, a two-frame track born of a streak
-    cut off at the frame's edge took the lower half of the pale end's streak; held as touched,
-    the pale end's window saw half its streak, and the neighbour's window the other half."""
-    touched = {(s.index, s.track): s.box for s in statuses if s.touched and s.box is not None}
-    blobs = shared_boxes(touched)
-    fitted = {(s.index, s.track) for s in statuses if s.status == "fitted"}
-    return {
-        key
-        for key in touched.keys() & fitted
-        if any(other != key and other[0] == key[0] and blobs[other] == blobs[key] for other in fitted & touched.keys())
-    }
+def touched_blobs(
+    statuses: list[FrameStatus],
+) -> tuple[dict[tuple[int, int], tuple[int, int, int, int]], set[tuple[int, int]]]:
+    """Per (frame index, track) whose streak touched others' (dropped tracks' too), the box of
+    their whole blob (:func:`shared_boxes`); and the fitted objects whose blob still holds
+    another fitted object. A track dropped as too short
+    (:func:`~sfb_video.stages.track.short_tracks_dropped`) gives its share of a blob back:
+    falling_three's frame 10, a two-frame track born of a streak cut off at the frame's edge
+    took the lower half of the pale end's streak; held as touched, the pale end's window saw
+    half its streak, and the neighbour's window the other half."""
+    blobs = shared_boxes({(s.index, s.track): s.box for s in statuses if s.touched and s.box is not None})
+    fitted = [key for s in statuses if s.status == "fitted" and (key := (s.index, s.track)) in blobs]
+    holding = Counter((index, blobs[index, track]) for index, track in fitted)
+    return blobs, {(index, track) for index, track in fitted if holding[index, blobs[index, track]] > 1}
 
 
 def _touch(a: tuple[int, int, int, int], b: tuple[int, int, int, int], gap: int = 2) -> bool:
@@ -183,9 +184,7 @@ def window_frame(
 ) -> WindowFrame:
     """The frame's crop around its detection ``box`` as its single-frame fit made it (the box's
     pixels stand for the detected blob), with the fit's sub-frame masks drawn on it."""
-    x, y, w, h = box
-    blob = torch.zeros(frame.pixels.shape[1:], dtype=torch.bool)
-    blob[y : y + h, x : x + w] = True
+    blob = box_mask(box, frame.pixels.shape[1:])
     pixels, background = frame.pixels.to(device), frame.background_pixels.to(device)
     crop = make_crop(pixels, background, box, camera, config.crop, blob.to(device))
     masks = None if result.masks is None else result.masks.to(device)
@@ -222,7 +221,7 @@ def object_paths(
 ) -> dict[int, ObjectPath]:
     """Per track, the :class:`ObjectPath` of its object fitted in one frame (``results``, by
     track) in ``camera``'s image; ``boxes``: its blob's box where not the fit's detection box (a
-    blob shared with a track since dropped, :func:`still_touched`)."""
+    blob shared with a track since dropped, :func:`touched_blobs`)."""
     paths = {}
     for track, result in results.items():
         motion = result.state.motion
@@ -233,9 +232,7 @@ def object_paths(
         step = (uv[1] - uv[0]).detach().cpu().double().numpy()
         length = float(np.linalg.norm(step))
         direction = step / length if length >= 1 else None
-        x, y, w, h = (boxes or {}).get(track, result.detection_box)
-        box = torch.zeros(mask.shape, dtype=torch.bool)
-        box[y : y + h, x : x + w] = True
+        box = box_mask((boxes or {}).get(track, result.detection_box), mask.shape)
         paths[track] = ObjectPath(torch.from_numpy(mask), torch.from_numpy(distance), direction, box)
     return paths
 
@@ -377,8 +374,7 @@ def fit_windows(
             done[window_key(window)] = load_window(path)
     pending = [w for w in windows if window_key(w) not in done]
     boxes = {(s.index, s.track): s.box for s in statuses if s.status == "fitted"}
-    touched = still_touched(statuses)
-    shared = shared_boxes({(s.index, s.track): s.box for s in statuses if s.touched and s.box is not None})
+    shared, touched = touched_blobs(statuses)
     boxes |= {k: b for k, b in shared.items() if k in boxes and b != boxes[k]}
     fitted: dict[int, list[int]] = {}  # frame index -> its fitted tracks
     for index, track in boxes:

@@ -26,7 +26,7 @@ import torch
 
 from sfb_video import metrics
 from sfb_video.config import Config
-from sfb_video.crop import Box
+from sfb_video.crop import Box, box_mask
 from sfb_video.errors import DivergenceError, NoObjectError
 from sfb_video.evaluation.datasets import BenchmarkFrame
 from sfb_video.evaluation.scoring import render_estimate, score_estimate
@@ -124,9 +124,7 @@ def fit_benchmark_frame(
     Raises:
         NoObjectError: when the box shows no difference from the background.
     """
-    x, y, w, h = box
-    blob = torch.zeros(inputs.pixels.shape[1:], dtype=torch.bool)
-    blob[y : y + h, x : x + w] = True
+    blob = box_mask(box, inputs.pixels.shape[1:])
     detection = Detection(inputs.index, box, blob)
     return fit_detection(inputs, detection, camera, config, previous, device, masks, earlier)
 

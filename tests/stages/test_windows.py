@@ -296,7 +296,7 @@ def test_a_dropped_track_gives_its_share_of_a_blob_back() -> None:
         FrameStatus(11, "fitted", (200, 200, 9, 9), track=4, touched=True),
     ]
     # Frame 11: tracks 1 and 3 still share one blob; track 4's part touches neither.
-    assert windows.still_touched(statuses) == {(11, 1), (11, 3)}
+    assert windows.touched_blobs(statuses)[1] == {(11, 1), (11, 3)}
 
 
 def test_a_window_crops_around_the_share_a_dropped_track_gave_back(
