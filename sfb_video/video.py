@@ -33,6 +33,10 @@ DEFAULT_FPS = 30.0
 # a short lookahead on two threads keeps it near 0.5 GB, at no cost in speed measured on 2 cores.
 _LARGE_FRAME = 1920 * 1080
 _LARGE_FRAME_OPTIONS = {"rc-lookahead": "5", "threads": "2"}
+# Some of x264's CPU-specific routines read memory it never wrote: the same frames encoded in two
+# processes decoded up to 3 levels apart in a few blocks, so a generated clip (the demo's, the
+# benchmarks') and every score measured on it changed between runs. cpu-independent avoids them.
+X264_PARAMS = "cpu-independent=1"
 
 OUTPUT_PRESET = "veryfast"
 """x264's preset for the videos a run writes (tsr.mp4, novel views): 240 frames of 640x480
@@ -216,7 +220,7 @@ class VideoWriter(AtomicOutput):
             self._stream = self._container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
             self._stream.width, self._stream.height = width + width % 2, height + height % 2
             self._stream.pix_fmt = "yuv420p"
-            options = {"crf": str(crf), "preset": preset}
+            options = {"crf": str(crf), "preset": preset, "x264-params": X264_PARAMS}
             self._stream.options = options | (_LARGE_FRAME_OPTIONS if width * height > _LARGE_FRAME else {})
         except (av.FFmpegError, OSError) as e:
             self.abort()
