@@ -229,17 +229,36 @@ def _miss(found: FrameBlobs, label: int, prediction: Prediction) -> float:
     return math.hypot(x + w / 2 - prediction.centre[0], y + h / 2 - prediction.centre[1])
 
 
+def _second_miss(
+    found: FrameBlobs,
+    predictions: list[tuple[Prediction, FrameResult]],
+    wanted: tuple[tuple[int, int], FrameResult, Prediction] | None,
+    config: Config,
+) -> float:
+    """How far, in its object's diameters, the blob a track would take were the one it wants
+    (``wanted``, :func:`follow`) taken lies from the prediction that finds it (inf: none would)."""
+    if wanted is None:
+        return math.inf
+    second = follow(found, predictions, config, frozenset({wanted[0][0]}), wanted[2].fallback)
+    return math.inf if second is None else _miss(found, second[0][0], second[2]) / max(second[2].diameter, 1.0)
+
+
 def _choosing_order(
     found: FrameBlobs,
     wants: list[tuple[Tracker, tuple[tuple[int, int], FrameResult, Prediction] | None]],
-    elsewhere: list[bool] | None = None,
+    elsewhere: list[float] | None = None,
+    *,
+    gate: float,
 ) -> list[int]:
     """The order in which tracks choose their blobs (indices into ``wants``: each track and the
     blob it would take, :func:`follow`): longer tracks first, their predictions being the
-    surest, but of tracks that would take the same blob, the one whose prediction lands nearest
-    it (in its object's diameters) first, at the place of the longest of them, unless it is a
-    track of one frame beside a longer one that would find no other blob (``elsewhere``, for
-    each track: whether it would, None: none would); the others of them keep their own places.
+    surest, but of tracks that would take the same blob, the one first whose taking it lands
+    them all nearest their blobs, at the place of the longest of them: its prediction's miss
+    plus the others' misses of the blobs they would take instead (``elsewhere``, for each track,
+    in its object's diameters, :func:`_second_miss`; None: none would take another), one that
+    would take none counting as a miss at the ``gate``'s edge, and the nearer prediction first
+    of equals. A track of one frame does not go first beside a longer one that would find no
+    other blob. The others of them keep their own places.
 
     Two objects following one path: the lead's streak came out a shred, and the lead's track,
     the longer by a frame, took the trailing object's blob, which its size outweighed the shred
@@ -248,13 +267,18 @@ def _choosing_order(
     pieces, the second started a track, and its guess, nearer the next frame's blob, took it
     from the pen's, which had no other. But falling_three.mp4's objects side by side, frame 11:
     the pale end's track of one frame lay on its blob, the red end's track, whose guess had
-    drifted, would have taken it though the red end's own blob lay in its gate too.
+    drifted, would have taken it though the red end's own blob lay in its gate too. And two
+    objects on one path two frames apart, cold: each track's guess at one direction landed on the
+    trail's blob, the lead's nearer, though the lead's other guess lay on its own blob; the
+    nearer first, the tracks swapped objects. A track losing its object costs no more than the
+    gate, though: a slow mover's track, its guess 4.3 diameters off, would have taken a fast
+    object's blob because it had no other.
     """
 
     miss = [math.inf if w is None else _miss(found, w[0][0], w[2]) / max(w[2].diameter, 1.0) for _, w in wants]
     # A track that would take no blob is a group of its own.
     group = [(-1 - k) if w is None else w[0][0] for k, (_, w) in enumerate(wants)]
-    others = elsewhere or [False] * len(wants)
+    others = elsewhere or [math.inf] * len(wants)
     longest: dict[int, int] = {}
     members: dict[int, list[int]] = {}
     for k, (tracker, _) in enumerate(wants):
@@ -264,14 +288,14 @@ def _choosing_order(
     for g, ks in members.items():
         # A track of one frame guesses its direction: it comes after a longer one that would
         # lose its object.
-        held = any(wants[k][0].length >= 2 and not others[k] for k in ks)
+        held = any(wants[k][0].length >= 2 and others[k] == math.inf for k in ks)
         sure = [k for k in ks if not (held and wants[k][0].length < 2)]
-        nearest[g] = min(sure, key=lambda k: (miss[k], k))
+        nearest[g] = min(sure, key=lambda k: (miss[k] + sum(min(others[j], gate) for j in ks if j != k), miss[k], k))
 
     def place(k: int) -> int:
         return longest[group[k]] if nearest[group[k]] == k else wants[k][0].length
 
-    return sorted(range(len(wants)), key=lambda k: (-place(k), miss[k], -wants[k][0].length, k))
+    return sorted(range(len(wants)), key=lambda k: (-place(k), nearest[group[k]] != k, miss[k], -wants[k][0].length, k))
 
 
 def follow_box(
@@ -576,11 +600,8 @@ def track_and_fit(
         merged: list[tuple[Tracker, int]] = []
         asked = [(t, t.predictions(frame.index)) for t in live]
         wants = [(t, follow(found, p, config)) for t, p in asked]
-        elsewhere = [
-            w is not None and follow(found, p, config, frozenset({w[0][0]}), w[2].fallback) is not None
-            for (_, p), (_, w) in zip(asked, wants, strict=True)
-        ]
-        for k in _choosing_order(found, wants, elsewhere):
+        elsewhere = [_second_miss(found, p, w, config) for (_, p), (_, w) in zip(asked, wants, strict=True)]
+        for k in _choosing_order(found, wants, elsewhere, gate=config.detect.gate):
             (tracker, predictions), followed = asked[k], wants[k][1]
             claim = None
             if followed is not None and followed[0][0] in taken:

@@ -237,24 +237,32 @@ def test_a_track_of_one_frame_chooses_after_a_longer_one_that_would_take_its_blo
     last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
     far, near = Prediction((30.0, 30.0), 10.0), Prediction((30.0, 17.0), 10.0)
     wants = [(piece, ((1, 0), last, near)), (pen, ((1, 0), last, far))]
-    assert _choosing_order(found, wants) == [1, 0]
-    assert _choosing_order(found, wants, [False, False]) == [1, 0]
+    assert _choosing_order(found, wants, gate=config.detect.gate) == [1, 0]
+    assert _choosing_order(found, wants, [math.inf, math.inf], gate=config.detect.gate) == [1, 0]
     # But where the longer track would find another blob, the nearer guess chooses first:
     # falling_three.mp4's red end's track, its guess drifted, took the pale end's blob from the
     # pale end's new track, though the red end's own blob lay in its gate.
-    assert _choosing_order(found, wants, [False, True]) == [0, 1]
-    # With a third, longer track that has another blob too, in either order: of the longer ones
-    # the nearer chooses first, and the track of one frame still comes after the pen, which has
-    # no other blob.
+    assert _choosing_order(found, wants, [math.inf, 0.5], gate=config.detect.gate) == [0, 1]
+    # With a third, longer track that has another blob too, in either order: the track of one
+    # frame still comes after the pen, which has no other blob; and the pen, far though its
+    # guess lands, before the nearer third, which has another blob.
     other = Tracker(CAMERA, config)
     piece.length, other.length = 1, 3
     three = [(pen, ((1, 0), last, far)), (other, ((1, 0), last, Prediction((30.0, 22.0), 10.0))), wants[0]]
-    assert _choosing_order(found, three, [False, True, True]) == [1, 0, 2]
-    assert _choosing_order(found, three[::-1], [True, True, False]) == [1, 2, 0]
-    # Of tracks that know their direction, the nearer prediction chooses first, however long:
-    # two objects on one path.
+    assert _choosing_order(found, three, [math.inf, 0.5, 0.5], gate=config.detect.gate) == [0, 1, 2]
+    assert _choosing_order(found, three[::-1], [0.5, 0.5, math.inf], gate=config.detect.gate) == [2, 1, 0]
+    # Of tracks that know their direction and would both find another blob, the nearer
+    # prediction chooses first, however long: two objects on one path.
     piece.length = 2
-    assert _choosing_order(found, wants) == [0, 1]
+    assert _choosing_order(found, wants, gate=config.detect.gate) == [0, 1]
+    assert _choosing_order(found, wants, [0.5, 0.5], gate=config.detect.gate) == [0, 1]
+    # Unless the farther one's going first lands both nearer their blobs: two objects on one
+    # path two frames apart, cold, where the lead's guess at one direction lay on the trail's
+    # blob, nearer than the trail's own guess, and its other guess on its own blob.
+    assert _choosing_order(found, wants, [0.1, 3.0], gate=config.detect.gate) == [1, 0]
+    # A track that would find no other blob costs a miss at the gate's edge, no more: a slow
+    # mover's track, its guess far off, does not take a fast object's blob for having no other.
+    assert _choosing_order(found, wants, [3.0, math.inf], gate=4.0) == [0, 1]
 
 
 def test_beside_a_tracked_object_only_objects_of_their_own_start_tracks() -> None:
