@@ -298,6 +298,25 @@ def _choosing_order(
     return sorted(range(len(wants)), key=lambda k: (-place(k), nearest[group[k]] != k, miss[k], -wants[k][0].length, k))
 
 
+def _goes_elsewhere(
+    found: FrameBlobs,
+    wanted: tuple[tuple[int, int], FrameResult, Prediction],
+    rest: tuple[tuple[int, int], FrameResult, Prediction] | None,
+    first_choices: set[int],
+) -> bool:
+    """Whether a track whose ``wanted`` blob another track took first takes the best blob left
+    (``rest``, :func:`follow`) rather than share the taken one: where ``rest`` lands nearer its
+    prediction (the other only passed near: the lead's shred, the trail's blob where the lead
+    was), or no track wants it first (``first_choices``) and a guess that is no fallback found it
+    (falling_three's frame 13: the pale end's guess lagged between the red end's streak and its
+    own, and it shared the red end's; but the 3D guess of the object that landed in the bowl,
+    its blob shared with the grey object's, reached the pale end's)."""
+    if rest is None:
+        return False
+    nearer = _miss(found, rest[0][0], rest[2]) < _miss(found, wanted[0][0], wanted[2])
+    return nearer or (rest[0][0] not in first_choices and not rest[2].fallback)
+
+
 def follow_box(
     frame: FrameWithBackground, box: Box, predictions: list[tuple[Prediction, FrameResult]], config: Config
 ) -> tuple[Detection, FrameResult | None]:
@@ -601,16 +620,15 @@ def track_and_fit(
         asked = [(t, t.predictions(frame.index)) for t in live]
         wants = [(t, follow(found, p, config)) for t, p in asked]
         elsewhere = [_second_miss(found, p, w, config) for (_, p), (_, w) in zip(asked, wants, strict=True)]
+        wanted = {w[0][0] for _, w in wants if w is not None}
         for k in _choosing_order(found, wants, elsewhere, gate=config.detect.gate):
             (tracker, predictions), followed = asked[k], wants[k][1]
             claim = None
             if followed is not None and followed[0][0] in taken:
                 # Its best blob is another track's too: their streaks touch or cross. Shared out
-                # if it can be; else the best blob left, or none (the track coasts). But a blob
-                # left that lands nearer its prediction is its object: the other's only passed
-                # near (the lead's shred, the trail's blob where the lead was).
+                # if it can be; else the best blob left, or none (the track coasts).
                 rest = follow(found, predictions, config, frozenset(taken), followed[2].fallback)
-                if rest is not None and _miss(found, rest[0][0], rest[2]) < _miss(found, followed[0][0], followed[2]):
+                if _goes_elsewhere(found, followed, rest, wanted):
                     followed = rest
                 elif (claim := _shared(found, followed, objects, tracker, config)) is None:
                     crossing, followed = followed, rest

@@ -30,6 +30,7 @@ from sfb_video.stages.track import (
     TrackNumbers,
     _choosing_order,
     _Claim,
+    _goes_elsewhere,
     _Held,
     _HeldFit,
     _look_back,
@@ -263,6 +264,29 @@ def test_a_track_of_one_frame_chooses_after_a_longer_one_that_would_take_its_blo
     # A track that would find no other blob costs a miss at the gate's edge, no more: a slow
     # mover's track, its guess far off, does not take a fast object's blob for having no other.
     assert _choosing_order(found, wants, [3.0, math.inf], gate=4.0) == [0, 1]
+
+
+def test_a_track_whose_blob_was_taken_goes_to_a_blob_left_that_is_nearer_or_no_track_wants() -> None:
+    # falling_three.mp4, frame 13: the pale end's guess lagged, landing between the red end's
+    # streak (taken first by the red end's track) and its own, a little nearer the red end's.
+    config = load_config("fast")
+    moving = np.zeros((60, 80), bool)
+    moving[5:15, 10:30] = True  # the streak taken first, box centre (20, 10)
+    moving[40:50, 10:30] = True  # the streak left, box centre (20, 45)
+    found = frame_blobs(torch.from_numpy(moving), config.detect)
+    taken, left = (1, 2) if found.centroids[1][1] < found.centroids[2][1] else (2, 1)
+    last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
+    guess = Prediction((20.0, 25.0), 10.0)  # 15 px from the taken streak, 20 from the other
+    wanted, rest = ((taken, 0), last, guess), ((left, 0), last, guess)
+    assert _goes_elsewhere(found, wanted, rest, {taken})  # no track wants the other first
+    assert not _goes_elsewhere(found, wanted, rest, {taken, left})  # another track's: share
+    assert not _goes_elsewhere(found, wanted, None, {taken})
+    # But not where only a fallback guess reaches it: the object that landed in the bowl.
+    fallback = ((left, 0), last, dataclasses.replace(guess, fallback=True))
+    assert not _goes_elsewhere(found, wanted, fallback, {taken})
+    # A blob left that lands nearer goes, wanted or not: the other track only passed near.
+    nearer = ((left, 0), last, Prediction((20.0, 40.0), 10.0))
+    assert _goes_elsewhere(found, wanted, nearer, {taken, left})
 
 
 def test_beside_a_tracked_object_only_objects_of_their_own_start_tracks() -> None:
