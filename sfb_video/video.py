@@ -33,9 +33,10 @@ DEFAULT_FPS = 30.0
 # a short lookahead on two threads keeps it near 0.5 GB, at no cost in speed measured on 2 cores.
 _LARGE_FRAME = 1920 * 1080
 _LARGE_FRAME_OPTIONS = {"rc-lookahead": "5", "threads": "2"}
-# Some of x264's CPU-specific routines read memory it never wrote: the same frames encoded in two
+# Without cpu-independent, x264's output depended on what the process had freed before encoding
+# (some of its CPU-specific routines seem to read memory they never wrote): the same frames in two
 # processes decoded up to 3 levels apart in a few blocks, so a generated clip (the demo's, the
-# benchmarks') and every score measured on it changed between runs. cpu-independent avoids them.
+# benchmarks') and every score measured on it changed between runs. With it, one file every time.
 X264_PARAMS = "cpu-independent=1"
 
 OUTPUT_PRESET = "veryfast"

@@ -583,8 +583,9 @@ def track_and_fit(
 
     Every fast mover has its own track (at most ``video.max_objects`` at once; 0: all). In each
     frame the tracks look for their objects first, each among the blobs that no other has
-    taken, in :func:`_choosing_order` (longest first, but the nearest of those that would take
-    one blob before the others, a track of one frame after longer ones); the blobs left that
+    taken, in :func:`_choosing_order` (longest first, but of those that would take one blob the
+    one whose taking it lands them all nearest, a track of one frame after longer ones); one
+    whose blob was taken goes to a blob left (:func:`_goes_elsewhere`) or shares it; the blobs left that
     are objects of their own (:data:`OTHER_SHARE`,
     :meth:`~sfb_video.stages.detect.FrameBlobs.own_object`) start new tracks, largest first.
     A track fitted in enough frames to be kept looks back for its object inside other tracks'
@@ -625,8 +626,9 @@ def track_and_fit(
             (tracker, predictions), followed = asked[k], wants[k][1]
             claim = None
             if followed is not None and followed[0][0] in taken:
-                # Its best blob is another track's too: their streaks touch or cross. Shared out
-                # if it can be; else the best blob left, or none (the track coasts).
+                # Its best blob is another track's too: their streaks touch or cross. The best
+                # blob left where it is this track's object; else shared out if it can be; else
+                # the best blob left all the same, or none (the track coasts).
                 rest = follow(found, predictions, config, frozenset(taken), followed[2].fallback)
                 if _goes_elsewhere(found, followed, rest, wanted):
                     followed = rest

@@ -303,7 +303,7 @@ print(hashlib.md5(pixels).hexdigest())
 
 
 def test_encoding_does_not_depend_on_what_the_process_freed_before(tmp_path: Path) -> None:
-    # Some of x264's CPU-specific routines read memory it never wrote: without cpu-independent,
+    # x264's output depended on what the process had freed before encoding: without cpu-independent,
     # the demo clip encoded after freeing memory filled from seed 2 or 7 decoded to other pixels,
     # and the demo's score changed between runs.
     clip = demo_clip(demo_config(load_config("default")))

@@ -252,8 +252,8 @@ def test_a_track_of_one_frame_chooses_after_a_longer_one_that_would_take_its_blo
     three = [(pen, ((1, 0), last, far)), (other, ((1, 0), last, Prediction((30.0, 22.0), 10.0))), wants[0]]
     assert _choosing_order(found, three, [math.inf, 0.5, 0.5], gate=config.detect.gate) == [0, 1, 2]
     assert _choosing_order(found, three[::-1], [0.5, 0.5, math.inf], gate=config.detect.gate) == [2, 1, 0]
-    # Of tracks that know their direction and would both find another blob, the nearer
-    # prediction chooses first, however long: two objects on one path.
+    # Of tracks that know their direction, and would both find another blob as near or neither
+    # would, the nearer prediction chooses first, however long: two objects on one path.
     piece.length = 2
     assert _choosing_order(found, wants, gate=config.detect.gate) == [0, 1]
     assert _choosing_order(found, wants, [0.5, 0.5], gate=config.detect.gate) == [0, 1]
@@ -261,6 +261,10 @@ def test_a_track_of_one_frame_chooses_after_a_longer_one_that_would_take_its_blo
     # path two frames apart, cold, where the lead's guess at one direction lay on the trail's
     # blob, nearer than the trail's own guess, and its other guess on its own blob.
     assert _choosing_order(found, wants, [0.1, 3.0], gate=config.detect.gate) == [1, 0]
+    # As long as each other: the one chosen goes first though its guess lands farther.
+    pen.length = 2
+    assert _choosing_order(found, wants, [0.1, 3.0], gate=config.detect.gate) == [1, 0]
+    pen.length = 5
     # A track that would find no other blob costs a miss at the gate's edge, no more: a slow
     # mover's track, its guess far off, does not take a fast object's blob for having no other.
     assert _choosing_order(found, wants, [3.0, math.inf], gate=4.0) == [0, 1]
