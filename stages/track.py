@@ -229,6 +229,13 @@ def _miss(found: FrameBlobs, label: int, prediction: Prediction) -> float:
     return math.hypot(x + w / 2 - prediction.centre[0], y + h / 2 - prediction.centre[1])
 
 
+def _miss_diameters(found: FrameBlobs, followed: tuple[tuple[int, int], FrameResult, Prediction] | None) -> float:
+    """:func:`_miss` of a :func:`follow` result in its object's diameters (inf: no blob)."""
+    if followed is None:
+        return math.inf
+    return _miss(found, followed[0][0], followed[2]) / max(followed[2].diameter, 1.0)
+
+
 def _second_miss(
     found: FrameBlobs,
     predictions: list[tuple[Prediction, FrameResult]],
@@ -239,8 +246,7 @@ def _second_miss(
     (``wanted``, :func:`follow`) taken lies from the prediction that finds it (inf: none would)."""
     if wanted is None:
         return math.inf
-    second = follow(found, predictions, config, frozenset({wanted[0][0]}), wanted[2].fallback)
-    return math.inf if second is None else _miss(found, second[0][0], second[2]) / max(second[2].diameter, 1.0)
+    return _miss_diameters(found, follow(found, predictions, config, frozenset({wanted[0][0]}), wanted[2].fallback))
 
 
 def _choosing_order(
@@ -275,7 +281,7 @@ def _choosing_order(
     object's blob because it had no other.
     """
 
-    miss = [math.inf if w is None else _miss(found, w[0][0], w[2]) / max(w[2].diameter, 1.0) for _, w in wants]
+    miss = [_miss_diameters(found, w) for _, w in wants]
     # A track that would take no blob is a group of its own.
     group = [(-1 - k) if w is None else w[0][0] for k, (_, w) in enumerate(wants)]
     others = elsewhere or [math.inf] * len(wants)
