@@ -286,7 +286,8 @@ class JointConfig(_Checked):
     """A window's joint fit stands for its frames when it explains their difference from the
     background (``explained`` in summary.json, the mean over the window) at most this much less
     than their single-frame fits do; otherwise they keep the single-frame fits (a path that the
-    trajectory's model cannot follow, such as a circular swing over the window)."""
+    trajectory's model cannot follow, such as a circular swing over the window). A frame that an
+    accepted window explains more than this much worse than its single-frame fit keeps that fit."""
     learn_exposure: bool = True
     """Learn the exposure fraction (shared by the window) from ``video.exposure_fraction``;
     off keeps that value."""

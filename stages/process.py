@@ -50,7 +50,14 @@ from sfb_video.stages.read import check_video, probe, select_frames
 from sfb_video.stages.register import camera_motion
 from sfb_video.stages.track import track_and_fit
 from sfb_video.stages.types import FrameStatus, Window
-from sfb_video.stages.windows import fit_windows, shown_windows, track_windows, window_key, with_joint
+from sfb_video.stages.windows import (
+    fit_windows,
+    shown_windows,
+    touched_blobs,
+    track_windows,
+    trusted_frames,
+    with_joint,
+)
 from sfb_video.timing import timed
 from sfb_video.video import VideoInfo
 
@@ -163,10 +170,16 @@ def run_windows(
     whose joint fit its outputs show (:func:`~sfb_video.stages.windows.shown_windows`)."""
     windows = track_windows(statuses, config.joint.window, config.joint.overlap) if config.joint.enabled else []
     # A window whose joint fit diverged was not saved, and one that explains its frames worse
-    # than their single-frame fits is not accepted: their frames keep the single-frame fits.
+    # than their single-frame fits is not accepted: their frames keep the single-frame fits, as
+    # does a frame that an accepted window explains far worse.
     saved = [w for w in windows if window_path(folder, w[0], w[1][0]).is_file()]
-    accepted = [window_key(w) for w in saved if load_window(window_path(folder, w[0], w[1][0])).accepted]
-    return saved, shown_windows(windows, accepted)
+    _, touched = touched_blobs(statuses)
+    trusted = {}
+    for track, members in saved:
+        window = load_window(window_path(folder, track, members[0]))
+        held = [i for i in members if (i, track) in touched]
+        trusted[window.key] = trusted_frames(window, config.joint.max_explained_drop, held)
+    return saved, shown_windows(windows, trusted)
 
 
 def final_results(folder: Path, config: Config) -> dict[tuple[int, int], FrameResult]:

@@ -42,6 +42,7 @@ from sfb_video.stages.windows import (
     previous_window,
     shown_windows,
     track_windows,
+    trusted_frames,
     window_frame,
     with_joint,
 )
@@ -335,7 +336,7 @@ def _joint_rows(
             print(f"{sequence.name}: joint fit of frames {members[0]}-{members[-1]} skipped: {exc}", file=sys.stderr)
         for i in members:
             seconds[i] += (time.perf_counter() - started) / len(members)
-    owner = shown_windows(windows, [k for k, w in done.items() if w.accepted])
+    owner = shown_windows(windows, {k: trusted_frames(w, config.joint.max_explained_drop) for k, w in done.items()})
     rows = list(unfitted)
     for index, (frame, result, _) in sorted(fitted.items()):
         key = (index, tracks.get(index))

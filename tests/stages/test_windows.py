@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -17,9 +18,10 @@ from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
+from sfb_video.results import SavedWindow
 from sfb_video.stages import windows
 from sfb_video.stages.types import FrameStatus, FrameWithBackground
-from sfb_video.stages.windows import frame_windows, shared_boxes, shown_windows, track_windows
+from sfb_video.stages.windows import frame_windows, shared_boxes, shown_windows, track_windows, trusted_frames
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
 E = 0.6
@@ -71,9 +73,30 @@ def test_a_frame_whose_window_was_rejected_keeps_its_single_fit() -> None:
     # falling_three frames 12-13: their window (frames 10-15) was rejected, and the previous
     # window, never judged on them, drew its object there three times too large over the bowl.
     windows_ = [(0, [0, 1, 2, 3, 4, 5]), (0, [4, 5, 6, 7, 8, 9]), (1, [4, 5])]
-    shown = shown_windows(windows_, accepted=[(0, 0), (4, 1)])
+    shown = shown_windows(windows_, {(0, 0): range(6), (4, 1): [4, 5]})
     assert [shown.get((i, 0)) for i in range(10)] == [(0, 0)] * 5 + [None] * 5
     assert shown[4, 1] == shown[5, 1] == (4, 1)
+
+
+def test_a_frame_its_window_explains_far_worse_keeps_its_single_fit() -> None:
+    # falling_three frame 13 (2026-12-06): the pale end's window was accepted on its mean
+    # (frame 11 rose -0.13 -> 0.66) while frame 13 fell 0.22 -> 0.06, its fit off the streak.
+    explained = {9: (0.40, 0.37), 10: (0.34, 0.61), 11: (-0.13, 0.66), 12: (0.66, 0.63), 13: (0.22, 0.06)}
+    # Only the frames the joint fit names are read here.
+    fit = SimpleNamespace(losses={i: {} for i in explained})
+    window = SavedWindow(2, fit, {}, explained, accepted=True)  # type: ignore[arg-type]
+    assert trusted_frames(window, 0.15) == {9, 10, 11, 12}
+    assert trusted_frames(window, 0.2) == {9, 10, 11, 12, 13}
+    assert trusted_frames(dataclasses.replace(window, accepted=False), 0.15) == set()
+    # Where its streak touched another object's, the window held the pose, and the frame's own
+    # fit, drawn to the other's pixels, explains more: the window stands there (the crossing).
+    crossing = dataclasses.replace(window, explained=explained | {13: (0.53, 0.32)})
+    assert trusted_frames(crossing, 0.15) == {9, 10, 11, 12}
+    assert trusted_frames(crossing, 0.15, held=[13]) == {9, 10, 11, 12, 13}
+    # Unless it explains less than half as much as the frame's own fit.
+    assert trusted_frames(window, 0.15, held=[13]) == {9, 10, 11, 12}
+    shown = shown_windows([(2, [9, 10, 11, 12, 13])], {(9, 2): trusted_frames(window, 0.15)})
+    assert sorted(shown) == [(i, 2) for i in (9, 10, 11, 12)]
 
 
 def _seeds(path: list[torch.Tensor]) -> list[Seed]:
