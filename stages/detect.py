@@ -420,6 +420,19 @@ class FrameBlobs:
         colour = None if self.pixels is None else blob_colour(*self.pixels, part)
         return Detection(index, box, torch.from_numpy(part), others, colour)
 
+    def merge(self, label: int, pieces: list[int]) -> None:
+        """Make blob ``label`` and the ``pieces`` (other labels) one blob, ``label``; the pieces
+        are left empty (no pixel, no area)."""
+        mask = np.isin(self.labels, [label, *pieces])
+        self.labels[mask] = label
+        box = mask_box(mask)
+        assert box is not None  # blob label has pixels
+        v, u = np.nonzero(mask)
+        self.stats[label] = (*box, len(u))
+        self.centroids[label] = (u.mean(), v.mean())
+        self.stats[pieces] = 0
+        self._quarters.pop(label, None)
+
     def split(self, label: int, predictions: list[Prediction], min_area: float) -> list[np.ndarray] | None:
         """Blob ``label`` shared out among the objects whose streaks ``predictions`` foresee
         touching in it (:func:`share_out`): (H, W) bool masks in the predictions' order, or None."""

@@ -593,7 +593,9 @@ def track_and_fit(
     one whose taking it lands them all nearest, a track of one frame after longer ones); one
     whose blob was taken goes to a blob left (:func:`_goes_elsewhere`) or shares it; the blobs left that
     are objects of their own (:data:`OTHER_SHARE`,
-    :meth:`~sfb_video.stages.detect.FrameBlobs.own_object`) start new tracks, largest first.
+    :meth:`~sfb_video.stages.detect.FrameBlobs.own_object`) start new tracks, largest first;
+    the other pieces left of a track's streak, split off as objects beside it, go back to it
+    (:func:`_on_its_streak`).
     A track fitted in enough frames to be kept looks back for its object inside other tracks'
     blobs of the frames before its first (:func:`_look_back`). ``masks`` gives each fit its sub-frame
     masks (None: the difference mask).
@@ -657,6 +659,12 @@ def track_and_fit(
             objects.append(claim or _Claim(tracker, label, others, prediction))
         live = [t for t in live if t.previous is not None]
         fresh = _new_objects(found, taken, config, alone=not live)
+        # A piece that no track wants and that is no object of its own may be a track's.
+        free = {k for k in range(1, found.count) if k not in taken and k not in wanted and k not in fresh}
+        for claim in objects:
+            if pieces := _on_its_streak(found, claim, free):
+                found.merge(claim.label, pieces)
+                free -= set(pieces)
         room = max(0, int(min(limit, len(fresh) + len(live)) - len(live)))
         objects += [_Claim(Tracker(camera, config, numbers), label, 0, None) for label in fresh[:room]]
         untracked = len(fresh) - room
@@ -731,6 +739,32 @@ class _Claim:
     prediction: Prediction | None
     part: np.ndarray | None = None
     shared_with: list[Tracker] = dataclasses.field(default_factory=list)
+
+
+def _on_its_streak(found: FrameBlobs, claim: _Claim, free: set[int]) -> list[int]:
+    """The other pieces of the blob that ``claim``'s was split from as objects beside each other
+    (:func:`~sfb_video.stages.detect.side_by_side`), among the ``free`` blobs (no track took them
+    or wants them first, and no object of its own, :func:`_new_objects`), that lie on its track's
+    predicted streak rather than beside it: their centres within half its object's diameter of
+    the line along the predicted motion through its blob's.
+
+    The slow-beside scenario's pen (``benchmarks.multi_object``), frame 7: its thin streak came
+    in two cores end to end, 3 px apart across, split as two objects; its track took one, and
+    its fit covered half the streak. An object beside another starts its own track even where it
+    lies in the other's predicted streak: the predicted diameters of young tracks run large
+    (falling_three.mp4's, 37 to 56 px, for streaks 15 px wide and 18 to 28 px apart)."""
+    prediction = claim.prediction
+    if found.joined is None or claim.part is not None or prediction is None or prediction.ends is None:
+        return []
+    (ax, ay), (bx, by) = prediction.ends
+    length = math.hypot(bx - ax, by - ay)
+    if length < 1.0:
+        return []
+    across = np.array((ay - by, bx - ax)) / length
+    siblings = np.flatnonzero(found.joined == found.joined[claim.label])
+    # The claim's own blob is taken, so not free.
+    apart = np.abs((found.centroids[siblings] - found.centroids[claim.label]) @ across)
+    return [int(k) for k, d in zip(siblings, apart, strict=True) if k in free and d <= prediction.diameter / 2]
 
 
 def _shared(

@@ -6,6 +6,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -23,7 +24,7 @@ from sfb_video.model.scene import ObjectState
 from sfb_video.results import FrameResult, save_result
 from sfb_video.run_folder import saved_frames
 from sfb_video.stages.background import running_median
-from sfb_video.stages.detect import frame_blobs, share_out
+from sfb_video.stages.detect import FrameBlobs, frame_blobs, share_out
 from sfb_video.stages.fit import continued
 from sfb_video.stages.track import (
     Tracker,
@@ -35,6 +36,7 @@ from sfb_video.stages.track import (
     _HeldFit,
     _look_back,
     _new_objects,
+    _on_its_streak,
     _proven,
     _restated,
     _shared,
@@ -291,6 +293,28 @@ def test_a_track_whose_blob_was_taken_goes_to_a_blob_left_that_is_nearer_or_no_t
     # A blob left that lands nearer goes, wanted or not: the other track only passed near.
     nearer = ((left, 0), last, Prediction((20.0, 40.0), 10.0))
     assert _goes_elsewhere(found, wanted, nearer, {taken, left})
+
+
+def test_a_piece_of_a_track_s_streak_split_off_as_an_object_beside_it_is_joined_back() -> None:
+    # The slow-beside scenario's pen, frame 7: its thin streak came in two cores end to end,
+    # 3 px apart across, split as two objects beside each other; its track took one piece.
+    mask = np.zeros((40, 80), np.uint8)
+    mask[10:14, 10:25] = 1  # the piece the track took, centre (17, 11.5)
+    mask[13:17, 27:40] = 1  # end to end with it, 3 px lower: on the streak
+    mask[22:26, 12:27] = 1  # a streak 12 px lower: an object beside it
+    count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    by_x = {round(c[0]): k for k, c in enumerate(centroids[1:], 1)}
+    mine, on, beside = by_x[17], by_x[33], by_x[19]
+    found = FrameBlobs(count, labels, stats, centroids, joined=np.array([0, mine, mine, mine]))
+    prediction = Prediction((25.0, 13.0), 9.0, ends=((40.0, 14.0), (10.0, 12.0)))
+    claim = _Claim(Tracker(CAMERA, load_config("fast")), mine, 0, prediction)
+    assert _on_its_streak(found, claim, {on, beside}) == [on]
+    assert _on_its_streak(found, claim, {beside}) == []  # another track took it or wants it
+    assert _on_its_streak(dataclasses.replace(found, joined=None), claim, {on, beside}) == []
+    found.merge(mine, [on])
+    assert tuple(found.stats[mine]) == (10, 10, 30, 7, 60 + 52) and found.area(on) == 0
+    assert not (found.labels == on).any()
+    assert found.centroids[mine][0] == pytest.approx((60 * 17 + 52 * 33) / 112)
 
 
 def test_beside_a_tracked_object_only_objects_of_their_own_start_tracks() -> None:
