@@ -287,7 +287,8 @@ class JointConfig(_Checked):
     background (``explained`` in summary.json, the mean over the window) at most this much less
     than their single-frame fits do; otherwise they keep the single-frame fits (a path that the
     trajectory's model cannot follow, such as a circular swing over the window). A frame that an
-    accepted window explains more than this much worse than its single-frame fit keeps that fit."""
+    accepted window explains more than this much worse than its single-frame fit keeps that fit
+    (a frame whose pose the window held: only where it explains less than half as much too)."""
     learn_exposure: bool = True
     """Learn the exposure fraction (shared by the window) from ``video.exposure_fraction``;
     off keeps that value."""

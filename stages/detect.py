@@ -422,7 +422,8 @@ class FrameBlobs:
 
     def merge(self, label: int, pieces: list[int]) -> None:
         """Make blob ``label`` and the ``pieces`` (other labels) one blob, ``label``; the pieces
-        are left empty (no pixel, no area)."""
+        are left empty (no pixel, no box, no area: no blob picks them), their centroids and
+        colours as they were."""
         mask = np.isin(self.labels, [label, *pieces])
         self.labels[mask] = label
         box = mask_box(mask)

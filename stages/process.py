@@ -56,6 +56,7 @@ from sfb_video.stages.windows import (
     touched_blobs,
     track_windows,
     trusted_frames,
+    window_key,
     with_joint,
 )
 from sfb_video.timing import timed
@@ -174,18 +175,18 @@ def run_windows(
     # does a frame that an accepted window explains far worse.
     saved = [w for w in windows if window_path(folder, w[0], w[1][0]).is_file()]
     _, touched = touched_blobs(statuses)
-    trusted = {}
+    trusted: dict[tuple[int, int], set[int]] = {}
     for track, members in saved:
         window = load_window(window_path(folder, track, members[0]))
         held = [i for i in members if (i, track) in touched]
-        trusted[window.key] = trusted_frames(window, config.joint.max_explained_drop, held)
+        trusted[window_key((track, members))] = trusted_frames(window, config.joint.max_explained_drop, held)
     return saved, shown_windows(windows, trusted)
 
 
 def final_results(folder: Path, config: Config) -> dict[tuple[int, int], FrameResult]:
     """Every object fitted in a run folder (its tracks not dropped), by (frame index, track), as
     its outputs show it: from the window that stands for it where that window's joint fit was
-    accepted, else its single-frame fit (:func:`run_windows`)."""
+    accepted and explains the frame well enough, else its single-frame fit (:func:`run_windows`)."""
     _, statuses = read_run(folder)
     _, shown = run_windows(folder, statuses, config)
     windows: dict[tuple[int, int], SavedWindow] = {}
@@ -229,7 +230,7 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
         summary = _summary(record, info, statuses, done, tsr, device_note, config.video.min_explained)
         summary["tracks"] = _track_summary(statuses, done)
         summary["camera"] = _camera_summary(motion)
-        summary["joint"] = _joint_summary(folder, saved)
+        summary["joint"] = _joint_summary(folder, saved, shown)
         recorder.log_run(config_to_dict(config), summary)
     write_json(folder / SUMMARY, summary)
     return summary
@@ -319,9 +320,13 @@ def _mean(values: list[float]) -> float | None:
     return sum(values) / len(values) if values else None
 
 
-def _joint_summary(folder: Path, windows: list[tuple[int, list[int]]]) -> dict:
-    """What summary.json says of the joint fits: per window its frames, motion model, exposure
-    fraction, prototype (and the candidates' trial losses), and the mean L_I before and after."""
+def _joint_summary(
+    folder: Path, windows: list[tuple[int, list[int]]], shown: dict[tuple[int, int], tuple[int, int]]
+) -> dict:
+    """What summary.json says of the joint fits: per window its frames, those it stands for
+    (``shown``: (frame index, track) -> the window's key, :func:`run_windows`), motion model,
+    exposure fraction, prototype (and the candidates' trial losses), and the mean L_I before and
+    after."""
     rows = []
     for track, frames in windows:
         saved = load_window(window_path(folder, track, frames[0]))
@@ -342,6 +347,7 @@ def _joint_summary(folder: Path, windows: list[tuple[int, list[int]]]) -> dict:
                 "explained_before": _mean([saved.explained[i][0] for i in frames if i in saved.explained]),
                 "explained_after": _mean([saved.explained[i][1] for i in frames if i in saved.explained]),
                 "accepted": saved.accepted,
+                "shown_frames": [i for i in frames if shown.get((i, track)) == (frames[0], track)],
                 "seconds": joint.seconds,
             }
         )

@@ -144,6 +144,8 @@ def test_the_track_is_fitted_jointly_and_the_outputs_follow_it(run: Run) -> None
     assert abs(joint["exposure_fraction"] - run.clip.spec.exposure_fraction) < 0.1
     frame = run.summary["frames"][2]
     assert frame["window"] == 0 and "image" in frame["losses"] and "image" in frame["losses_before"]
+    # The frames the window stands for are those whose outputs show it.
+    assert window["shown_frames"] == [f["index"] for f in run.summary["frames"] if f.get("window") == 0]
     assert (run.out / "windows" / "window_00000_track_00.pt").is_file()
     assert (run.out / "meshes" / "track_00.glb").is_file()
 

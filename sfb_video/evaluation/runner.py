@@ -89,7 +89,8 @@ class FrameRow:
     @property
     def windowed(self) -> float:
         """In the joint mode, 1 where an accepted window stands for the frame, 0 where the frame
-        kept its single-frame fit (a rejected window); NaN in the other modes."""
+        kept its single-frame fit (a rejected window, or one that explains the frame far worse,
+        :func:`~sfb_video.stages.windows.trusted_frames`); NaN in the other modes."""
         return float(self.status == "joint") if self.mode == "joint" else math.nan
 
 
@@ -336,6 +337,7 @@ def _joint_rows(
             print(f"{sequence.name}: joint fit of frames {members[0]}-{members[-1]} skipped: {exc}", file=sys.stderr)
         for i in members:
             seconds[i] += (time.perf_counter() - started) / len(members)
+    # One object a sequence: no streak touches another's, so no window holds a frame's pose.
     owner = shown_windows(windows, {k: trusted_frames(w, config.joint.max_explained_drop) for k, w in done.items()})
     rows = list(unfitted)
     for index, (frame, result, _) in sorted(fitted.items()):

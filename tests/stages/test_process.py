@@ -49,7 +49,9 @@ def test_each_frame_is_read_back_as_the_export_shows_it(monkeypatch: pytest.Monk
         path = window_path(tmp_path, 0, first)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.touch()
-    monkeypatch.setattr(process, "load_window", lambda path: SimpleNamespace(accepted=True, name=path.name))
+    # Accepted windows, judged on none of their frames (every frame of theirs trusted).
+    saved = {"accepted": True, "explained": {}, "frames": range(8)}
+    monkeypatch.setattr(process, "load_window", lambda path: SimpleNamespace(name=path.name, **saved))
     monkeypatch.setattr(process, "with_joint", lambda result, window: window.name)
     results = process.final_results(tmp_path, config)
     assert set(results) == {(i, 0) for i in range(8)}

@@ -311,6 +311,9 @@ def test_a_piece_of_a_track_s_streak_split_off_as_an_object_beside_it_is_joined_
     assert _on_its_streak(found, claim, {on, beside}) == [on]
     assert _on_its_streak(found, claim, {beside}) == []  # another track took it or wants it
     assert _on_its_streak(dataclasses.replace(found, joined=None), claim, {on, beside}) == []
+    # A claim on a part of a shared blob, or with no prediction, takes nothing back.
+    assert _on_its_streak(found, dataclasses.replace(claim, part=labels == mine), {on, beside}) == []
+    assert _on_its_streak(found, dataclasses.replace(claim, prediction=None), {on, beside}) == []
     found.merge(mine, [on])
     assert tuple(found.stats[mine]) == (10, 10, 30, 7, 60 + 52) and found.area(on) == 0
     assert not (found.labels == on).any()

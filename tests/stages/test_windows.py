@@ -95,6 +95,13 @@ def test_a_frame_its_window_explains_far_worse_keeps_its_single_fit() -> None:
     assert trusted_frames(crossing, 0.15, held=[13]) == {9, 10, 11, 12, 13}
     # Unless it explains less than half as much as the frame's own fit.
     assert trusted_frames(window, 0.15, held=[13]) == {9, 10, 11, 12}
+    # Held is never judged more strictly than not held: 0.08 is less than half of 0.20, but
+    # within 0.15 of it.
+    near = dataclasses.replace(window, explained=explained | {13: (0.20, 0.08)})
+    assert trusted_frames(near, 0.15, held=[13]) == trusted_frames(near, 0.15) == {9, 10, 11, 12, 13}
+    # A frame the window was not judged on (a window saved before the judgement) is its own.
+    unjudged = dataclasses.replace(window, explained={i: e for i, e in explained.items() if i != 13})
+    assert trusted_frames(unjudged, 0.15) == {9, 10, 11, 12, 13}
     shown = shown_windows([(2, [9, 10, 11, 12, 13])], {(9, 2): trusted_frames(window, 0.15)})
     assert sorted(shown) == [(i, 2) for i in (9, 10, 11, 12)]
 
