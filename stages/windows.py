@@ -116,10 +116,10 @@ def trusted_frames(window: SavedWindow, max_drop: float, held: Collection[int] =
     takes in its neighbours' pixels) can hide a fit that lies off its streak on another. The
     frames whose pose the window ``held`` (their streak touched another object's,
     :func:`fit_track_window`) are its own also where it explains less, as long as it explains at
-    least half as much as the single-frame fit: that fit, drawn to the other object's pixels, explains more and lies
-    off (the crossing of ``benchmarks.multi_object``: 0.53 against the window's 0.32), but a
-    window that loses more has lost the object (falling_three's objects landing in the bowl:
-    0.36 against 0.06)."""
+    least half as much as the single-frame fit: that fit, drawn to the other object's pixels,
+    explains more and lies off (the crossing of ``benchmarks.multi_object``: 0.53 against the
+    window's 0.32), but a window that loses more has lost the object (falling_three's objects
+    landing in the bowl: 0.36 against 0.06)."""
     if not window.accepted:
         return set()
     explained = window.explained
