@@ -559,7 +559,7 @@ def build_parser() -> argparse.ArgumentParser:
     export.set_defaults(func=cmd_export)
     evaluate = sub.add_parser("eval", parents=[common], help="score the method on a benchmark dataset")
     evaluate.add_argument(
-        "--dataset", required=True, choices=["tbd", "tbd3d", "falling", "synthetic", "synthetic-hard"]
+        "--dataset", required=True, choices=["tbd", "tbd3d", "falling", "synthetic", "synthetic-hard", "shapes"]
     )
     evaluate.add_argument(
         "--root", required=True, help="the dataset's folder (synthetic: generated there on first use)"

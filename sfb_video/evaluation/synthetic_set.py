@@ -3,7 +3,10 @@
 ``synthetic``: five clips, one per shape the generator draws (ball, box, pen, ring, key), with
 different speeds and spins. ``synthetic-hard``: longer clips closer to real footage: exposure
 fractions from 0.3 to 1.0, 8-12 frames, gravity arcs, a bounce, a faint low-contrast object,
-one behind a mesh fence and one crossing from a dark to a bright background. Each clip is fixed
+one behind a mesh fence and one crossing from a dark to a bright background. ``shapes``: the
+labelled shape benchmark, eight clips per class of object (ball, box, elongated, disc, ring)
+over textures, sizes, spins, shutters and a fence, on which the choice of shape is judged
+(:func:`shape_specs`). Each clip is fixed
 by its seed so the sets and their scores can be reproduced. The set
 is written once into a folder (one sub-folder per clip, in ``sfb_video.synth.io``'s layout) and
 read back as sequences that the evaluation runs like the benchmark's own.
@@ -126,7 +129,107 @@ def hard_specs() -> dict[str, ClipSpec]:
     }
 
 
-SETS = {"synthetic": benchmark_specs, "synthetic-hard": hard_specs}
+SHAPE_CLASSES = {"ball": ("ball",), "box": ("box",), "elongated": ("pen", "key"), "disc": ("disc",), "ring": ("ring",)}
+"""The shape benchmark's classes, each with the generator's shapes it holds."""
+
+PROTOTYPE_CLASSES = {
+    "sphere": "ball",
+    "sphere_large": "ball",
+    "box": "box",
+    "capsule": "elongated",
+    "disc": "disc",
+    "torus": "ring",
+}
+"""The class of the shape benchmark that each of the fitter's prototypes stands for."""
+
+_OWN_STYLE = {"ball": "seam", "box": "checker", "pen": "stripes", "key": "mixed", "disc": "spokes", "ring": "checker"}
+"""Per shape, the texture its kind of object often shows (a tennis ball's seam, a disc's spokes)."""
+
+
+def shape_specs() -> dict[str, ClipSpec]:
+    """The labelled shape benchmark, by sequence name (``<class>_<variant>``): eight sequences per
+    class of :data:`SHAPE_CLASSES` (the elongated class alternating pens and keys), one per
+    variant: a small plain object; stripes on a half-open shutter; the shape's own look (a
+    seam, spokes) on an open one; a faint one; one behind a fence; a short shutter with a fast
+    spin; a large one (70-80 px); a falling arc of 8 frames. 6-8 frames each, mostly of
+    640x480, over photos drawn by the seed; the exposure is not told."""
+    variants: dict[str, dict] = {
+        "plain": {
+            "texture_style": "plain",
+            "size_px_range": (15.0, 20.0),
+            "exposure_fraction": 0.8,
+            "speed_range": (1.2, 1.5),
+            "rotation_deg_range": (20.0, 40.0),
+            "width": 320,
+            "height": 240,
+        },
+        "stripes": {
+            "texture_style": "stripes",
+            "size_px_range": (24.0, 30.0),
+            "exposure_fraction": 0.5,
+            "speed_range": (1.0, 1.2),
+            "rotation_deg_range": (40.0, 80.0),
+        },
+        "own": {
+            "size_px_range": (30.0, 36.0),
+            "exposure_fraction": 1.0,
+            "speed_range": (1.0, 1.3),
+            "rotation_deg_range": (10.0, 30.0),
+        },
+        "faint": {
+            "texture_style": "patches",
+            "contrast": 0.3,
+            "size_px_range": (26.0, 32.0),
+            "exposure_fraction": 0.7,
+            "speed_range": (1.1, 1.4),
+            "rotation_deg_range": (30.0, 60.0),
+        },
+        "fence": {
+            "texture_style": "mixed",
+            "fence_period_px": 16,
+            "size_px_range": (28.0, 34.0),
+            "exposure_fraction": 0.6,
+            "speed_range": (1.0, 1.2),
+            "rotation_deg_range": (20.0, 40.0),
+        },
+        "short": {
+            "texture_style": "patches",
+            "size_px_range": (20.0, 26.0),
+            "exposure_fraction": 0.3,
+            "speed_range": (1.0, 1.1),
+            "rotation_deg_range": (60.0, 120.0),
+        },
+        "large": {
+            "size_px_range": (70.0, 80.0),
+            "exposure_fraction": 0.9,
+            "speed_range": (1.0, 1.1),
+            "rotation_deg_range": (20.0, 50.0),
+        },
+        "arc": {
+            "texture_style": "stripes",
+            "size_px_range": (44.0, 52.0),
+            "exposure_fraction": 0.7,
+            "speed_range": (1.0, 1.1),
+            "rotation_deg_range": (30.0, 90.0),
+            "gravity": 0.04,
+            "num_frames": 8,
+        },
+    }
+    specs = {}
+    for c, (name, shapes) in enumerate(SHAPE_CLASSES.items()):
+        for v, (variant, fields) in enumerate(variants.items()):
+            shape = shapes[v % len(shapes)]
+            settings = {"width": 640, "height": 480, "num_frames": 6, "texture_style": _OWN_STYLE[shape]} | fields
+            specs[f"{name}_{variant}"] = ClipSpec(shape=shape, seed=300 + 10 * c + v, **settings)
+    return specs
+
+
+def shape_class(name: str) -> str:
+    """The class (of :data:`SHAPE_CLASSES`) of the shape benchmark's sequence ``name``."""
+    return name.rsplit("_", 1)[0]
+
+
+SETS = {"synthetic": benchmark_specs, "synthetic-hard": hard_specs, "shapes": shape_specs}
 """Dataset name -> its specs."""
 
 

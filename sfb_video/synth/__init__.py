@@ -33,11 +33,12 @@ from sfb_video.synth.io import load_clip, save_clip, write_clip
 from sfb_video.synth.raster import RasterImages, pose_points, rasterize
 from sfb_video.synth.shapes import SHAPE_NAMES, TexturedMesh, make_shape
 from sfb_video.synth.spec import ClipSpec
-from sfb_video.synth.textures import TEXTURE_STYLES, procedural_texture
+from sfb_video.synth.textures import OBJECT_STYLES, TEXTURE_STYLES, procedural_texture
 from sfb_video.synth.trajectory import FrameMotion, Trajectory, sample_trajectory
 
 __all__ = [
     "BACKGROUND_NAMES",
+    "OBJECT_STYLES",
     "SHAPE_NAMES",
     "TEXTURE_STYLES",
     "ClipSpec",

@@ -24,7 +24,7 @@ from sfb_video.geometry.mesh import MeshTopology, normalize_vertices, signed_vol
 from sfb_video.geometry.prototypes import torus, uv_sphere
 from sfb_video.synth.textures import procedural_texture
 
-SHAPE_NAMES = ("ball", "box", "pen", "ring", "key")
+SHAPE_NAMES = ("ball", "box", "pen", "ring", "key", "disc")
 
 # The shapes' proportions (before normalisation to unit scale) and mesh resolutions.
 BALL_RINGS, BALL_SEGMENTS = 22, 55  # the fitter's "sphere" prototype
@@ -32,6 +32,7 @@ BOX_SIDES, BOX_CELLS = (1.0, 0.62, 0.4), 6
 PEN_LENGTH, PEN_RADIUS, PEN_RINGS, PEN_SEGMENTS = 5.0, 0.5, 30, 24  # length : diameter = 5 : 1
 RING_MAJOR, RING_MINOR, RING_TUBE_RATIO = 48, 24, 0.35
 KEY_CELL, KEY_THICKNESS = 0.08, 0.16  # outline grid spacing; the head has radius 1
+DISC_THICKNESS, DISC_RINGS, DISC_SEGMENTS = 0.24, 8, 64  # a flying disc: diameter : thickness = 2 : 0.24
 
 
 @dataclass(frozen=True)
@@ -278,12 +279,58 @@ def extruded_mesh(occupied: np.ndarray, cell: float, thickness: float) -> tuple[
     return _finish(points[used], faces_c.reshape(-1, 3), uv_grid, face_uvs)
 
 
+def disc_mesh(thickness: float, rings: int, segments: int) -> tuple[torch.Tensor, MeshTopology]:
+    """A flat cylinder of radius 1 and ``thickness`` along y: two faces of ``rings`` concentric
+    rings of ``segments`` vertices around a centre, joined by a wall at the rim.
+
+    Texture coordinates are the planar map of the faces (centre at (0.5, 0.5), the rim touching
+    the map's sides; the same on both faces); the wall takes the colour of the rim.
+    """
+    phi = np.arange(segments) * 2 * math.pi / segments
+    radii = np.arange(1, rings + 1) / rings
+    ring_xz = np.stack((np.outer(radii, np.cos(phi)), np.outer(radii, np.sin(phi))), -1).reshape(-1, 2)
+    plane = np.concatenate((np.zeros((1, 2)), ring_xz))  # the centre, then ring by ring
+    per_face = len(plane)
+    points = np.concatenate(
+        [np.stack((plane[:, 0], np.full(per_face, y), plane[:, 1]), -1) for y in (thickness / 2, -thickness / 2)]
+    )
+    uvs = np.concatenate([0.5 + plane / 2] * 2)
+    j = np.arange(segments)
+    nxt = (j + 1) % segments
+    faces, outward = [], []
+    for layer, ny in ((0, 1.0), (1, -1.0)):
+        base = layer * per_face
+
+        def ring(k: int, s: np.ndarray, base: int = base) -> np.ndarray:
+            return base + 1 + k * segments + s
+
+        layer_faces = [np.stack((np.full(segments, base), ring(0, j), ring(0, nxt)), -1)]
+        for k in range(rings - 1):
+            layer_faces += [
+                np.stack((ring(k, j), ring(k + 1, j), ring(k, nxt)), -1),
+                np.stack((ring(k, nxt), ring(k + 1, j), ring(k + 1, nxt)), -1),
+            ]
+        stacked = np.concatenate(layer_faces)
+        faces.append(stacked)
+        outward.append(np.tile([0.0, ny, 0.0], (len(stacked), 1)))
+    top, bottom = 1 + (rings - 1) * segments + j, per_face + 1 + (rings - 1) * segments + j
+    top_n, bottom_n = 1 + (rings - 1) * segments + nxt, per_face + 1 + (rings - 1) * segments + nxt
+    wall = np.concatenate((np.stack((top, bottom, top_n), -1), np.stack((top_n, bottom, bottom_n), -1)))
+    faces.append(wall)
+    rim = np.stack((np.cos(phi), np.zeros(segments), np.sin(phi)), -1)
+    outward.append(np.concatenate((rim, rim)))
+    all_faces = np.concatenate(faces)
+    oriented, face_uvs = _orient(points, all_faces, all_faces.copy(), np.concatenate(outward))
+    return _finish(points, oriented, uvs, face_uvs)
+
+
 def make_shape(name: str, rng: np.random.Generator, texture_size: int, texture_style: str) -> TexturedMesh:
     """The textured shape ``name`` (one of ``SHAPE_NAMES``), its texture drawn from ``rng``.
 
     Shapes: "ball" (UV sphere, 1212 vertices), "box" (sides 1 : 0.62 : 0.4), "pen" (capsule,
     length : diameter = 5 : 1), "ring" (torus, tube/ring radius 0.35), "key" (flat plate 5 x 2
-    x 0.16 with a round head, a hole and two teeth).
+    x 0.16 with a round head, a hole and two teeth), "disc" (a flying disc: a flat cylinder of
+    diameter : thickness = 2 : 0.24).
     """
     if name == "ball":
         vertices, topology = uv_sphere(BALL_RINGS, BALL_SEGMENTS)
@@ -295,6 +342,8 @@ def make_shape(name: str, rng: np.random.Generator, texture_size: int, texture_s
         vertices, topology = torus(RING_MAJOR, RING_MINOR, RING_TUBE_RATIO)
     elif name == "key":
         vertices, topology = extruded_mesh(key_outline(KEY_CELL), KEY_CELL, KEY_THICKNESS)
+    elif name == "disc":
+        vertices, topology = disc_mesh(DISC_THICKNESS, DISC_RINGS, DISC_SEGMENTS)
     else:
         raise SfbError(f"unknown shape {name!r}; choose one of {', '.join(SHAPE_NAMES)}")
     texture = procedural_texture(rng, texture_size, texture_style)

@@ -14,7 +14,7 @@ from typing import Any
 from sfb_video.errors import ConfigError
 from sfb_video.synth.backgrounds import BACKGROUND_NAMES
 from sfb_video.synth.shapes import SHAPE_NAMES
-from sfb_video.synth.textures import TEXTURE_STYLES
+from sfb_video.synth.textures import OBJECT_STYLES, TEXTURE_STYLES
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,8 @@ class ClipSpec:
             intensity scale is [0, 1]) before 8-bit quantisation.
         shape: one of ``SHAPE_NAMES``.
         texture_size: side of the square texture image in texels.
-        texture_style: one of ``TEXTURE_STYLES`` or "random" (drawn from the seed).
+        texture_style: one of ``TEXTURE_STYLES`` or ``OBJECT_STYLES``, or "random" (drawn from
+            the seed among ``TEXTURE_STYLES``).
         background: one of ``BACKGROUND_NAMES`` or "random" (drawn from the seed).
         background_crop_range: the photo crop as a fraction of the largest crop that fits.
         size_px_range: the projected bounding-sphere diameter of the object at the middle of
@@ -167,8 +168,9 @@ def _validate(spec: ClipSpec) -> None:
         raise ConfigError(f"noise_sigma must be >= 0, got {spec.noise_sigma}")
     if spec.shape not in SHAPE_NAMES:
         raise ConfigError(f"unknown shape {spec.shape!r}; choose one of {', '.join(SHAPE_NAMES)}")
-    if spec.texture_style != "random" and spec.texture_style not in TEXTURE_STYLES:
-        raise ConfigError(f"unknown texture_style {spec.texture_style!r}; choose one of {TEXTURE_STYLES}")
+    styles = TEXTURE_STYLES + OBJECT_STYLES
+    if spec.texture_style != "random" and spec.texture_style not in styles:
+        raise ConfigError(f"unknown texture_style {spec.texture_style!r}; choose one of {styles}")
     if spec.texture_size < 4:
         raise ConfigError(f"texture_size must be >= 4, got {spec.texture_size}")
     if spec.background != "random" and spec.background not in BACKGROUND_NAMES:

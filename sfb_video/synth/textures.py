@@ -17,6 +17,11 @@ import numpy as np
 from sfb_video.errors import SfbError
 
 TEXTURE_STYLES = ("stripes", "checker", "patches", "mixed")
+"""The styles "random" draws from (kept as they are: every seeded set's draws depend on them)."""
+
+OBJECT_STYLES = ("plain", "seam", "spokes")
+"""Styles named only, for the looks real objects have that the random ones lack: one colour, a
+tennis ball's seam, a flying disc's spokes."""
 
 
 def random_palette(rng: np.random.Generator, count: int) -> np.ndarray:
@@ -99,11 +104,50 @@ def mixed(rng: np.random.Generator, size: int) -> np.ndarray:
     return np.where(line[..., None], base * 0.25, base)
 
 
-_MAKERS = {"stripes": stripes, "checker": checker, "patches": patches, "mixed": mixed}
+def plain(rng: np.random.Generator, size: int) -> np.ndarray:
+    """(size, size, 3) float: one colour (a plain ball or box; its rotation cannot be seen)."""
+    return np.broadcast_to(random_palette(rng, 1)[0], (size, size, 3)).copy()
+
+
+def seam(rng: np.random.Generator, size: int) -> np.ndarray:
+    """(size, size, 3) float: a tennis ball's look on a sphere's (longitude, latitude) map: one
+    colour crossed by a pale band that swings twice around the ball, the seam's curve."""
+    u, v = _grid(size)
+    base, line = random_palette(rng, 1)[0], np.array([0.95, 0.95, 0.9])
+    swing = rng.uniform(0.18, 0.26)
+    curve = 0.5 + swing * np.sin(4 * np.pi * (u + rng.uniform()))
+    band = np.abs(v - curve) < rng.uniform(0.025, 0.04)
+    return np.where(band[..., None], line, base)
+
+
+def spokes(rng: np.random.Generator, size: int) -> np.ndarray:
+    """(size, size, 3) float: on a planar map centred at (0.5, 0.5) (a disc's face), 4-8 dark
+    spokes from the centre over a light colour, and a dark rim."""
+    u, v = _grid(size)
+    base = random_palette(rng, 1)[0]
+    dark = base * 0.2
+    count = int(rng.integers(4, 9))
+    angle = (np.arctan2(v - 0.5, u - 0.5) + rng.uniform(0, np.pi)) % (2 * np.pi / count)
+    radius = np.hypot(u - 0.5, v - 0.5)
+    spoke = (angle < rng.uniform(0.15, 0.3) * 2 * np.pi / count) & (radius > 0.06)
+    rim = (radius > 0.42) & (radius < 0.5)
+    return np.where((spoke | rim)[..., None], dark, base)
+
+
+_MAKERS = {
+    "stripes": stripes,
+    "checker": checker,
+    "patches": patches,
+    "mixed": mixed,
+    "plain": plain,
+    "seam": seam,
+    "spokes": spokes,
+}
 
 
 def procedural_texture(rng: np.random.Generator, size: int, style: str) -> np.ndarray:
-    """An (size, size, 3) uint8 texture of ``style`` (one of ``TEXTURE_STYLES``, or "random").
+    """An (size, size, 3) uint8 texture of ``style`` (one of ``TEXTURE_STYLES`` or
+    ``OBJECT_STYLES``, or "random").
 
     "random" draws the style from ``rng``, so the texture is still a function of the seed.
     """
@@ -112,6 +156,6 @@ def procedural_texture(rng: np.random.Generator, size: int, style: str) -> np.nd
     if style == "random":
         style = TEXTURE_STYLES[int(rng.integers(len(TEXTURE_STYLES)))]
     if style not in _MAKERS:
-        raise SfbError(f"unknown texture style {style!r}; choose one of {', '.join(TEXTURE_STYLES)}")
+        raise SfbError(f"unknown texture style {style!r}; choose one of {', '.join(_MAKERS)}")
     image = _MAKERS[style](rng, size)
     return np.round(np.clip(image, 0, 1) * 255).astype(np.uint8)
