@@ -168,7 +168,8 @@ def main() -> None:
         for sequence in sequences:
             run.append(score_sequence(sequence, perturbed, device))
             r = run[-1]
-            print(f"{r.name}: {r.prototype or '-'} ({r.psnr - r.im:+.2f} dB over Im)", flush=True)
+            over = f"{r.psnr - r.im:+.2f} dB over Im"
+            print(f"{r.name}: {r.prototype or '-'} ({over}, {r.seconds_per_frame:.1f} s a frame)", flush=True)
         runs.append(run)
     minutes = (time.perf_counter() - started) / 60
     told = f"preset {args.config} {' '.join(args.set)}"
