@@ -142,8 +142,9 @@ def mesh_distance(
     D(M1, M2) is the mean distance of M1's vertices to M2's surface, both meshes rescaled to fit
     a unit cube. With ``align`` the estimate is first moved onto the truth: both are brought to
     the same rotation-free scale (unit RMS radius of their surfaces), then ICP finds the rigid
-    motion onto dense samples of the truth's surface, starting from the poses given (pass both in the same frame, e.g. posed at the start
-    of the exposure, so that ICP starts near the answer).
+    motion onto dense samples of the truth's surface, starting from the poses given (pass both
+    in the same frame, e.g. posed at the start of the exposure, so that ICP starts near the
+    answer).
 
     Args:
         vertices, faces: (V, 3) float and (F, 3) int, the estimate.

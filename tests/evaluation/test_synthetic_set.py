@@ -4,7 +4,16 @@ import numpy as np
 import pytest
 
 from sfb_video.errors import SfbError
-from sfb_video.evaluation.synthetic_set import SET_FILE, benchmark_specs, ensure_set, hard_specs, list_synthetic
+from sfb_video.evaluation.synthetic_set import (
+    SET_FILE,
+    SHAPE_CLASSES,
+    benchmark_specs,
+    ensure_set,
+    hard_specs,
+    list_synthetic,
+    shape_class,
+    shape_specs,
+)
 from sfb_video.synth import ClipSpec, make_scene
 
 
@@ -88,3 +97,20 @@ def test_a_shaken_set_is_registered_back_onto_the_still_clip(tmp_path: Path) -> 
         assert error < 0.02  # measured 0.009-0.011 (the shaken frames: 0.04-0.08): interpolation
         if k > 0:
             assert np.abs(moved[k] - b.image)[inner].mean() > 3 * error
+
+
+def test_the_shape_set_holds_eight_of_every_class_over_the_textures_sizes_and_shutters_asked_for() -> None:
+    specs = shape_specs()
+    assert len(specs) == 40 and len({s.seed for s in specs.values()}) == 40
+    for name, shapes in SHAPE_CLASSES.items():
+        members = [s for n, s in specs.items() if shape_class(n) == name]
+        assert len(members) == 8 and {s.shape for s in members} == set(shapes)
+    styles = {s.texture_style for s in specs.values()}
+    assert {"plain", "stripes", "seam", "spokes"} <= styles
+    assert any(s.contrast < 0.5 for s in specs.values()) and any(s.fence_period_px for s in specs.values())
+    assert (
+        min(s.size_px_range[0] for s in specs.values()) == 15 and max(s.size_px_range[1] for s in specs.values()) == 80
+    )
+    shutters = [s.exposure_fraction for s in specs.values()]
+    assert min(shutters) == 0.3 and max(shutters) == 1.0
+    assert all(6 <= s.num_frames <= 10 for s in specs.values())
