@@ -42,8 +42,9 @@ import dataclasses
 import functools
 import math
 import statistics
+import sys
 import time
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 
 import torch
@@ -408,6 +409,11 @@ def window_candidate(
         {"params": [p for p in rotation if p.requires_grad], "lr": fit_config.lr_rotation},
         {"params": [path.exposure_raw] if path.exposure_raw.requires_grad else [], "lr": config.lr_exposure},
     ]
+    started = [*shape.parameters(), *path.parameters(), *([] if rest is None else [rest])]
+    if not all(bool(torch.isfinite(p).all()) for p in started):
+        # A start sized or placed from a degenerate footprint or path (the log of a scale that
+        # is not a number): Adam would only spread the NaN from the first step on.
+        raise DivergenceError(f"the {'seed' if start is None else start.name} start is not finite")
     optimiser = torch.optim.Adam([g for g in groups if g["params"]], lr=fit_config.lr, fused=True)
     return Optimisation(WindowObjective(window, shape, path, rest), optimiser, config.iterations)
 
@@ -540,8 +546,9 @@ def fit_window(
             (and of every candidate during the trials).
 
     Raises:
-        DivergenceError: when no finite path fits the seeds, or every candidate's loss is
-            non-finite from its first step.
+        DivergenceError: when no finite path fits the seeds, no candidate starts from a finite
+            state (one that does not is left out), or every candidate's loss is non-finite from
+            its first step.
     """
     started = time.perf_counter()
     with stage("joint: path"):
@@ -558,19 +565,24 @@ def fit_window(
             # (measured on `synthetic`: the seeds won every one, a box staying a torus).
             with stage("joint: shape trial"):
                 contenders, shapes = trial_shapes(window, prototypes, render_config)
-            fits = {}
+            fits: dict[str, Optimisation] = {}
             for start, spin in contenders:
                 if searching:
                     with stage("joint: spin search"):
                         spin = searched_spin(window, start, render_config, around=spin)
-                fits[f"shape:{start.name}"] = window_candidate(window, start, spin, rigid=True)
+                _add(fits, f"shape:{start.name}", functools.partial(window_candidate, window, start, spin, rigid=True))
+            if not fits:  # no shaped start was finite: the seeds' mesh goes on
+                _add(fits, f"seed:{window.best_seed.prototype}", functools.partial(window_candidate, window, None))
         else:
-            fits = {f"seed:{window.best_seed.prototype}": window_candidate(window, None)}
+            fits = {}
+            _add(fits, f"seed:{window.best_seed.prototype}", functools.partial(window_candidate, window, None))
             if searching:
                 start = seed_prototype(window)
                 with stage("joint: spin search"):
                     spin = searched_spin(window, start, render_config)
-                fits[f"spin:{start.name}"] = window_candidate(window, start, spin)
+                _add(fits, f"spin:{start.name}", functools.partial(window_candidate, window, start, spin))
+        if not fits:
+            raise DivergenceError("no candidate of the window starts from a finite state")
         trial = max(1, round(config.trial_fraction * config.iterations)) if len(fits) > 1 else None
         with stage("joint: steps"):
             key, trials = race(fits, trial, on_step)
@@ -593,6 +605,14 @@ def fit_window(
         trials=trials,
         shapes=shapes,
     )
+
+
+def _add(fits: dict[str, Optimisation], key: str, make: Callable[[], Optimisation]) -> None:
+    """``fits[key] = make()``, unless the candidate's start is not finite (left out, said on stderr)."""
+    try:
+        fits[key] = make()
+    except DivergenceError as exc:
+        print(f"joint fit: {exc}; left out of the window's candidates", file=sys.stderr)
 
 
 @timed("joint: refine")

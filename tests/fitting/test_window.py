@@ -5,16 +5,19 @@ fits scatter, and it lowers the loss of its start."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
 import torch
 
 from sfb_video.config import load_config
+from sfb_video.errors import DivergenceError
 from sfb_video.evaluation.synthetic import score_state
 from sfb_video.fitting import window as window_module
 from sfb_video.fitting.frame import FitResult, fit_frame
 from sfb_video.fitting.path import Seed, measured_exposure
+from sfb_video.fitting.shapes import shaped_start
 from sfb_video.fitting.window import (
     JointResult,
     WindowFrame,
@@ -266,3 +269,21 @@ def test_a_fit_on_a_subset_of_frames_per_step_still_finds_one_path(clip: Synthet
     after = _score(clip, [result.state(i) for i in range(4)])
     assert abs(result.trajectory.exposure_fraction - TRUE_EXPOSURE) < 0.1
     assert np.mean(after) < 0.7 * np.mean(before)
+
+
+def test_a_shaped_start_that_is_not_finite_is_left_out_and_the_seeds_go_on(
+    clip: SyntheticClip, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A shaped start sized from a degenerate footprint (its size not a number) cannot start:
+    # it raises before any step, and the window goes on from the seeds' mesh, not diverging.
+    config = load_config("fast", ["joint.iterations=10"])
+    frames, seeds = _frames(clip)[:3], _seeds(clip, [1.0] * 4)[:3]
+    window = start_window(frames, seeds, clip.camera, config.fit, config.joint, config.render, 0.7)
+    start = shaped_start("box", window.footprint())
+    broken = dataclasses.replace(start, size_px=float("nan"))
+    with pytest.raises(DivergenceError, match="box start is not finite"):
+        window_candidate(window, broken, None, rigid=True)
+    monkeypatch.setattr(window_module, "trial_shapes", lambda *a: ([(broken, None)], {"sphere": 1.0, "box": 0.5}))
+    result = fit_window(frames, seeds, clip.camera, config.fit, config.joint, config.render, 0.7, ("box",))
+    assert result.prototype == "sphere" and math.isfinite(result.loss)
+    assert bool(torch.isfinite(result.vertices).all())
