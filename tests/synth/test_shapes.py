@@ -12,7 +12,7 @@ from sfb_video.synth.shapes import SHAPE_NAMES, make_shape
 from sfb_video.synth.textures import TEXTURE_STYLES, procedural_texture
 
 # Euler characteristic V - E + F = 2 - 2 * genus: the ring and the key have one hole.
-GENUS = {"ball": 0, "box": 0, "pen": 0, "ring": 1, "key": 1}
+GENUS = {"ball": 0, "box": 0, "pen": 0, "ring": 1, "key": 1, "disc": 0}
 
 
 def _principal_extents(vertices: torch.Tensor) -> np.ndarray:
