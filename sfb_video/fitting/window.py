@@ -51,7 +51,7 @@ import torch
 
 from sfb_video.config import FitConfig, JointConfig, RenderConfig
 from sfb_video.crop import Crop
-from sfb_video.errors import DivergenceError, PoseError
+from sfb_video.errors import DivergenceError, PoseError, check_finite
 from sfb_video.fitting.engine import (
     Optimisation,
     Step,
@@ -409,11 +409,11 @@ def window_candidate(
         {"params": [p for p in rotation if p.requires_grad], "lr": fit_config.lr_rotation},
         {"params": [path.exposure_raw] if path.exposure_raw.requires_grad else [], "lr": config.lr_exposure},
     ]
-    started = [*shape.parameters(), *path.parameters(), *([] if rest is None else [rest])]
-    if not all(bool(torch.isfinite(p).all()) for p in started):
-        # A start sized or placed from a degenerate footprint or path (the log of a scale that
-        # is not a number): Adam would only spread the NaN from the first step on.
-        raise DivergenceError(f"the {'seed' if start is None else start.name} start is not finite")
+    # A start sized or placed from a degenerate footprint or path (the log of a scale that is
+    # not a number): Adam would only spread the NaN from the first step on.
+    name = f"the {'seed' if start is None else start.name} start"
+    for p in [*shape.parameters(), *path.parameters(), *([] if rest is None else [rest])]:
+        check_finite(p, name, DivergenceError)
     optimiser = torch.optim.Adam([g for g in groups if g["params"]], lr=fit_config.lr, fused=True)
     return Optimisation(WindowObjective(window, shape, path, rest), optimiser, config.iterations)
 

@@ -281,7 +281,7 @@ def test_a_shaped_start_that_is_not_finite_is_left_out_and_the_seeds_go_on(
     window = start_window(frames, seeds, clip.camera, config.fit, config.joint, config.render, 0.7)
     start = shaped_start("box", window.footprint())
     broken = dataclasses.replace(start, size_px=float("nan"))
-    with pytest.raises(DivergenceError, match="box start is not finite"):
+    with pytest.raises(DivergenceError, match="the box start contains NaN"):
         window_candidate(window, broken, None, rigid=True)
     monkeypatch.setattr(window_module, "trial_shapes", lambda *a: ([(broken, None)], {"sphere": 1.0, "box": 0.5}))
     result = fit_window(frames, seeds, clip.camera, config.fit, config.joint, config.render, 0.7, ("box",))
