@@ -27,9 +27,10 @@ Entity layout (what each path holds):
     world/camera/image/subframe_mask  SegmentationImage, subframe timeline only: the sub-frame mask
                                    (DeFMO's; class 2 = "sub-frame mask") each fit used, in the
                                    fit's time order; only in runs with such masks.
-    run/masks, run/config, run/summary  static TextDocuments: the masks the fits used, per track
-                                   and frames ("diff", or "defmo" and whether DeFMO's order was
-                                   kept or reversed); the run's resolved config; its summary.json.
+    run/masks, run/config, run/summary, run/shapes  static TextDocuments: the masks the fits used,
+                                   per track and frames ("diff", or "defmo" and whether DeFMO's
+                                   order was kept or reversed); the run's resolved config; its
+                                   summary.json; the shape each joint window chose and its margin.
     world/track_XX/object          Mesh3D: track XX's fitted textured mesh in object coordinates
                                    (unit scale), and Transform3D (translation + mat3x3): its pose,
                                    object -> camera coordinates.
@@ -361,14 +362,16 @@ class Recorder(AtomicOutput):
 
     @timed("recording")
     def log_run(self, config: dict, summary: dict) -> None:
-        """Log the run's resolved ``config`` and its ``summary`` (summary.json's content) once, as
-        static text under ``run``."""
+        """Log the run's resolved ``config``, its ``summary`` (summary.json's content) and the shape
+        each track's windows chose (:func:`shape_text`) once, as static text under ``run``."""
         text = yaml.safe_dump(config, sort_keys=False)
         self._log("run/config", rr.TextDocument(f"```yaml\n{text}```", media_type=rr.MediaType.MARKDOWN), static=True)
         text = json.dumps(summary, indent=2)
         self._log(
             "run/summary", rr.TextDocument(f"```json\n{text}\n```", media_type=rr.MediaType.MARKDOWN), static=True
         )
+        shapes = shape_text(summary.get("joint", {}).get("windows", []))
+        self._log("run/shapes", rr.TextDocument(shapes, media_type=rr.MediaType.MARKDOWN), static=True)
 
     # ----------------------------------------------------------------------------------------------
     # Finishing
@@ -592,6 +595,24 @@ class _Pipe:
                 folder.rmdir()
 
 
+def shape_text(windows: Sequence[dict]) -> str:
+    """Markdown: per joint window (summary.json's ``joint.windows``), its track, frames and
+    shape, and for a track's first window how clearly the trial chose it: its margin and each
+    shape's score over the sphere's."""
+    if not windows:
+        return "No joint windows: every frame shows its single-frame fit."
+    lines = ["| track | frames | shape | margin | scores over the sphere's |", "|---:|---|---|---:|---|"]
+    for w in windows:
+        margin = w.get("shape_margin")
+        scores = ", ".join(f"{name} {value:.2f}" for name, value in (w.get("shape_trial") or {}).items())
+        scores = scores or "as the track's first window chose"
+        lines.append(
+            f"| {w['track']} | {_spans(w['frames'])} | {w['prototype']} | "
+            f"{'-' if margin is None else format(margin, '+.2f')} | {scores} |"
+        )
+    return "\n".join(lines)
+
+
 def _spans(frames: Sequence[int]) -> str:
     """Frame indices as runs: [0, 1, 2, 5] -> "0-2, 5"."""
     runs: list[list[int]] = []
@@ -627,6 +648,7 @@ def layout(tracks: Sequence[int], paths: Sequence[np.ndarray], subframes: int) -
     ]
     curves = rrb.TimeSeriesView(name="fit curves (step timeline)", origin="fit")
     text = rrb.Vertical(
+        rrb.TextDocumentView(name="shapes", origin="run/shapes"),
         rrb.TextDocumentView(name="masks", origin="run/masks"),
         rrb.TextDocumentView(name="summary", origin="run/summary"),
         rrb.TextDocumentView(name="config", origin="run/config"),

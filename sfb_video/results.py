@@ -201,6 +201,7 @@ def save_window(folder: Path, window: SavedWindow) -> None:
         "bounce": r.bounce,
         "trials": dict(r.trials),
         "shapes": dict(r.shapes),
+        "shape_margin": r.shape_margin,
         "refined": {
             int(k): {"texture": v.texture.cpu(), "motion": _motion_record(v.motion), "losses": dict(v.losses)}
             for k, v in r.refined.items()
@@ -229,6 +230,7 @@ def load_window(path: Path) -> SavedWindow:
             bounce=r["bounce"],
             trials=r["trials"],
             shapes=r.get("shapes", {}),  # saved before the footprint's trial: none
+            shape_margin=r.get("shape_margin"),
             refined={
                 int(k): Refined(v["texture"], Motion(**v["motion"]), v["losses"])
                 for k, v in r.get("refined", {}).items()

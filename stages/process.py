@@ -325,8 +325,8 @@ def _joint_summary(
 ) -> dict:
     """What summary.json says of the joint fits: per window its frames, those it stands for
     (``shown``: (frame index, track) -> the window's key, :func:`run_windows`), motion model,
-    exposure fraction, prototype (and the candidates' trial losses), and the mean L_I before and
-    after."""
+    exposure fraction, prototype (and the candidates' trial losses, the trial of shapes' scores
+    and how clearly its shape won), and the mean L_I before and after."""
     rows = []
     for track, frames in windows:
         saved = load_window(window_path(folder, track, frames[0]))
@@ -341,6 +341,7 @@ def _joint_summary(
                 "prototype": joint.prototype,
                 "prototype_trials": joint.trials,
                 "shape_trial": joint.shapes,
+                "shape_margin": joint.shape_margin,
                 "refined": sorted(joint.refined),
                 "image_loss_before": sum(saved.before[i]["image"] for i in frames) / len(frames),
                 "image_loss_after": sum(joint.frame_losses(i)["image"] for i in frames) / len(frames),

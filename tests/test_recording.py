@@ -25,7 +25,7 @@ from sfb_video.imageio import to_uint8
 from sfb_video.model.formation import exposure_times
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
-from sfb_video.recording import Recorder
+from sfb_video.recording import Recorder, shape_text
 
 CAMERA = PinholeCamera.from_fov(64, 48, 45.0)
 N_SUB = 3  # TSR sub-frames per fitted frame
@@ -591,3 +591,20 @@ def test_a_second_run_writes_the_same_layout(recorded: Recorded, tmp_path: Path)
     path = tmp_path / "again.rrd"
     record_clip(path, recorded.inputs)
     assert blueprint_rows(path) == blueprint_rows(recorded.path)
+
+
+def test_the_replay_shows_each_windows_shape_and_how_clearly_it_won() -> None:
+    windows = [
+        {
+            "track": 0,
+            "frames": [0, 1, 2],
+            "prototype": "box",
+            "shape_margin": 0.12,
+            "shape_trial": {"sphere": 1.0, "box": 0.88},
+        },
+        {"track": 0, "frames": [3, 4, 5], "prototype": "box", "shape_margin": None, "shape_trial": {}},
+    ]
+    rows = shape_text(windows).splitlines()
+    assert rows[2] == "| 0 | 0-2 | box | +0.12 | sphere 1.00, box 0.88 |"
+    assert rows[3] == "| 0 | 3-5 | box | - | as the track's first window chose |"
+    assert "No joint windows" in shape_text([])

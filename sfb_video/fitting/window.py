@@ -136,6 +136,8 @@ class JointResult:
             raced against the shapes within ``joint.shape_race`` of it where there are any).
         shapes: per prototype of the footprint's trial, its coarse texture's residual over the
             sphere's (:func:`trial_shapes`).
+        shape_margin: how clearly the trial's shape won (:func:`trial_margin`); None without a
+            trial.
         refined: per frame refined after the fit, its own texture and motion (the window's
             trajectory's where its pose was held; :func:`refine_frames`).
     """
@@ -153,6 +155,7 @@ class JointResult:
     trials: dict[str, float] = field(default_factory=dict)
     shapes: dict[str, float] = field(default_factory=dict)
     refined: dict[int, Refined] = field(default_factory=dict)
+    shape_margin: float | None = None
 
     def state(self, index: int) -> ObjectState:
         """Frame ``index``'s object: the shared mesh, and its refined texture and pose where the
@@ -487,6 +490,18 @@ def trial_shapes(
     return contenders, {name: s.residual / max(sphere, 1e-12) for name, s in scores.items()}
 
 
+def trial_margin(shapes: dict[str, float], chosen: str) -> float | None:
+    """How clearly ``chosen`` won the trial whose residuals (relative to the sphere's) are
+    ``shapes``: 1 - its residual over the best other's. Positive where it scored lowest; negative
+    where it was kept though another scored lower (the sphere within ``joint.shape_margin`` of a
+    complex shape, or a raced contender that won on its fit). None without a trial to judge by
+    (no other shape tried, or the chosen one not among them)."""
+    others = [v for n, v in shapes.items() if n != chosen]
+    if chosen not in shapes or not others or min(others) <= 0:
+        return None
+    return 1 - shapes[chosen] / min(others)
+
+
 def searched_spin(
     window: WindowStart, start: ShapedStart, render_config: RenderConfig, around: SpinScore | None = None
 ) -> SpinScore:
@@ -591,8 +606,9 @@ def fit_window(
     shape, path = fit.objective.modules
     with torch.no_grad():
         vertices, texture = shape.vertices().cpu(), shape.texture().cpu()
+    prototype = key.split(":")[-1]
     return JointResult(
-        prototype=key.split(":")[-1],
+        prototype=prototype,
         vertices=vertices,
         topology=shape.topology.to("cpu"),
         texture=texture,
@@ -604,6 +620,7 @@ def fit_window(
         bounce=window.bounce,
         trials=trials,
         shapes=shapes,
+        shape_margin=trial_margin(shapes, prototype) if key.startswith("shape:") else None,
     )
 
 

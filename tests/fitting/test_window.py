@@ -24,6 +24,7 @@ from sfb_video.fitting.window import (
     fit_window,
     refine_frames,
     start_window,
+    trial_margin,
     window_candidate,
 )
 from sfb_video.geometry.prototypes import load_prototype
@@ -287,3 +288,13 @@ def test_a_shaped_start_that_is_not_finite_is_left_out_and_the_seeds_go_on(
     result = fit_window(frames, seeds, clip.camera, config.fit, config.joint, config.render, 0.7, ("box",))
     assert result.prototype == "sphere" and math.isfinite(result.loss)
     assert bool(torch.isfinite(result.vertices).all())
+
+
+def test_the_trial_s_margin_says_how_clearly_its_shape_won() -> None:
+    # The box scored lowest, 0.8 of the sphere's against the disc's 0.9: it won by 1 - 0.8/0.9.
+    assert trial_margin({"sphere": 1.0, "box": 0.8, "disc": 0.9}, "box") == pytest.approx(1 - 0.8 / 0.9)
+    # The sphere kept, though the box scored 3% lower (inside the margin): negative.
+    assert trial_margin({"sphere": 1.0, "box": 0.97}, "sphere") == pytest.approx(1 - 1 / 0.97)
+    # Nothing to judge by: no other shape tried, or the chosen one not in the trial.
+    assert trial_margin({"sphere": 1.0}, "sphere") is None
+    assert trial_margin({"sphere": 1.0, "box": 0.9}, "torus") is None
