@@ -549,6 +549,7 @@ def test_the_recording_opens_on_a_layout_of_what_a_person_comes_to_see(recorded:
         "fit curves (step timeline)": ("TimeSeries", "/fit"),
         "reconstruction": ("2D", "/reconstruction"),
         "background": ("2D", "/background"),
+        "shapes": ("TextDocument", "/run/shapes"),
         "masks": ("TextDocument", "/run/masks"),
         "summary": ("TextDocument", "/run/summary"),
         "config": ("TextDocument", "/run/config"),
@@ -570,7 +571,7 @@ def test_the_recording_opens_on_a_layout_of_what_a_person_comes_to_see(recorded:
         for timeline in ("subframe", "frame"):
             assert any(c.entity_path == content[name] and timeline in c.timeline_names for c in recorded.chunks), name
     assert any(c.entity_path.startswith("/fit/") and "step" in c.timeline_names for c in recorded.chunks)
-    for entity in ("/run/masks", "/run/summary", "/run/config"):
+    for entity in ("/run/shapes", "/run/masks", "/run/summary", "/run/config"):
         assert rows(recorded.chunks, entity, "TextDocument:text", None), entity
     assert json.loads(one_at(recorded.chunks, "/run/summary", "TextDocument:text", None)[8:-4]) == SUMMARY
 
