@@ -597,15 +597,16 @@ class _Pipe:
 
 def shape_text(windows: Sequence[dict]) -> str:
     """Markdown: per joint window (summary.json's ``joint.windows``), its track, frames and
-    shape, and for a track's first window how clearly the trial chose it: its margin and each
-    shape's score over the sphere's."""
+    shape, and where a trial of shapes chose it (a track's first window, with ``joint.prototypes``)
+    how clearly: its margin and each shape's score over the sphere's. Other windows carry on the
+    shape of the track's earlier fits (the previous window's, or the single-frame fits')."""
     if not windows:
         return "No joint windows: every frame shows its single-frame fit."
     lines = ["| track | frames | shape | margin | scores over the sphere's |", "|---:|---|---|---:|---|"]
     for w in windows:
         margin = w.get("shape_margin")
         scores = ", ".join(f"{name} {value:.2f}" for name, value in (w.get("shape_trial") or {}).items())
-        scores = scores or "as the track's first window chose"
+        scores = scores or "no trial: the shape of the track's earlier fits"
         lines.append(
             f"| {w['track']} | {_spans(w['frames'])} | {w['prototype']} | "
             f"{'-' if margin is None else format(margin, '+.2f')} | {scores} |"

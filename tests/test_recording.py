@@ -607,5 +607,5 @@ def test_the_replay_shows_each_windows_shape_and_how_clearly_it_won() -> None:
     ]
     rows = shape_text(windows).splitlines()
     assert rows[2] == "| 0 | 0-2 | box | +0.12 | sphere 1.00, box 0.88 |"
-    assert rows[3] == "| 0 | 3-5 | box | - | as the track's first window chose |"
+    assert rows[3] == "| 0 | 3-5 | box | - | no trial: the shape of the track's earlier fits |"
     assert "No joint windows" in shape_text([])

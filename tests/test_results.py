@@ -22,7 +22,7 @@ def test_a_saved_window_reads_back_with_its_shape_trial_and_margin(tmp_path: Pat
         rot0=torch.eye(3),
         spin=torch.tensor([0.0, 0.1, 0.0]),
         exposure_fraction=0.6,
-        model="linear",
+        model="constant_velocity",
     )
     losses = {i: {"image": 0.1 * i} for i in (4, 5, 6)}
     result = JointResult(
