@@ -45,7 +45,9 @@ from sfb_video.config import Config, load_config
 from sfb_video.evaluation.objects import Coverage, cover_objects, spurious_tracks
 from sfb_video.evaluation.scoring import render_estimate, score_estimate
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.stages.process import ProcessOptions, final_results, process_clip
+from sfb_video.results import FrameKey
+from sfb_video.stages.process import ProcessOptions, process_clip
+from sfb_video.stages.run_results import RunResults
 from sfb_video.synth import generate_clip
 from sfb_video.synth.several import Layer, SeveralClip, cut, mirrored, several, shifted, take_layer
 from sfb_video.video import VideoWriter
@@ -178,7 +180,7 @@ def run_clip(clip: SeveralClip, folder: Path, config: Config) -> tuple[dict, dic
     folder.mkdir(parents=True, exist_ok=True)
     video = write_video(clip, folder / "clip.mp4")
     summary = process_clip(ProcessOptions(video=video, out=folder / "run"), config, CPU, quiet=True)
-    return summary, final_results(folder / "run", config)
+    return summary, RunResults.of_run(folder / "run", config.joint).final()
 
 
 def fit_scores(clip: SeveralClip, layer: int, coverage: Coverage, fits: dict, config: Config) -> tuple[float, float]:
@@ -189,7 +191,7 @@ def fit_scores(clip: SeveralClip, layer: int, coverage: Coverage, fits: dict, co
     n = obj.cover.shape[1]
     tious, psnrs = [], []
     for index in coverage.matched:
-        result = fits.get((index, coverage.track))
+        result = fits.get(FrameKey(index, coverage.track))
         if result is None:
             continue
         box = obj.boxes[index]

@@ -30,9 +30,10 @@ import torch
 from sfb_video.config import load_config
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion
-from sfb_video.results import FrameResult, load_results
-from sfb_video.stages.process import ProcessOptions, clip_camera, final_results, process_clip, read_run
+from sfb_video.results import FrameKey, FrameResult, load_results
+from sfb_video.stages.process import ProcessOptions, clip_camera, process_clip
 from sfb_video.stages.read import probe
+from sfb_video.stages.run_results import RunResults, read_run
 
 CLIPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "clips"
 
@@ -48,17 +49,18 @@ def _join_px(a: Motion, b: Motion, frames: int, exposure: float, camera: Pinhole
     return float((uv[1] - uv[0]).norm())
 
 
-def measure(results: dict[tuple[int, int], FrameResult], boxes: dict, exposure: float, camera: PinholeCamera) -> dict:
+def measure(results: dict[FrameKey, FrameResult], boxes: dict, exposure: float, camera: PinholeCamera) -> dict:
     """Median travel / streak and join gap (px) of a run's results, by (frame, track)."""
     ratios, gaps = [], []
-    for (i, t), r in sorted(results.items()):
-        _, _, w, h = boxes[i, t]
+    for key, r in sorted(results.items()):
+        i, t = key.index, key.track
+        _, _, w, h = boxes[key]
         streak = max(w, h) - min(w, h)
         if streak > 0:
             ratios.append(_travel_px(r.state.motion, camera) / streak)
-        if (i + 1, t) in results:
+        if (later := FrameKey(i + 1, t)) in results:
             # The exposure fraction the result was fitted with: the joint fit's own where learnt.
-            gaps.append(_join_px(r.state.motion, results[i + 1, t].state.motion, 1, exposure, camera))
+            gaps.append(_join_px(r.state.motion, results[later].state.motion, 1, exposure, camera))
     return {
         "travel_ratio": statistics.median(ratios) if ratios else float("nan"),
         "join_px": statistics.median(gaps) if gaps else float("nan"),
@@ -85,10 +87,10 @@ def main() -> None:
             seconds = time.perf_counter() - start
             _, statuses = read_run(out)
             camera = clip_camera(probe(clip, config.video), config, None)
-            boxes = {(s.index, s.track): s.box for s in statuses}
+            boxes = {s.key: s.box for s in statuses}
             joint_e = summary["joint"]["exposure_fraction"] or config.video.exposure_fraction
             before = measure(load_results(out), boxes, config.video.exposure_fraction, camera)
-            after = measure(final_results(out, config), boxes, joint_e, camera)
+            after = measure(RunResults.of_run(out, config.joint).final(), boxes, joint_e, camera)
         print(
             f"| {clip.name} | {summary['frames_fitted']} | {before['travel_ratio']:.2f} | {after['travel_ratio']:.2f} "
             f"| {before['join_px']:.1f} | {after['join_px']:.1f} | {joint_e:.2f} | {seconds:.0f} |",

@@ -46,7 +46,7 @@ def run_variant(preset: str, overrides: list[str], device: str = "cpu") -> dict:
         # The difference image, as in the README's table, whatever DeFMO weights this machine has.
         options = ProcessOptions(video=video, out=out, masks="diff")
         process_clip(options, config, torch.device(device), quiet=True)
-        results = {i: r for (i, _), r in load_results(out).items()}  # one object
+        results = {k.index: r for k, r in load_results(out).items()}  # one object
         scores = score_run(out, clip, config)
     rows = [
         {

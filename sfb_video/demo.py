@@ -14,7 +14,7 @@ from pathlib import Path
 
 from sfb_video.config import Config
 from sfb_video.evaluation.synthetic import FrameScore, score_state
-from sfb_video.stages.process import final_results
+from sfb_video.stages.run_results import RunResults
 from sfb_video.synth import ClipSpec, SyntheticClip, generate_clip
 from sfb_video.video import VideoWriter
 
@@ -53,8 +53,8 @@ def demo_config(config: Config) -> Config:
 def score_run(folder: Path, clip: SyntheticClip, config: Config) -> dict[int, FrameScore]:
     """Score every fitted frame of a run, as its outputs show it, against the clip's truth, in
     the run's time direction."""
-    results = final_results(folder, config)
-    return {i: score_state(r.state, clip, i, config, may_flip=False) for (i, _), r in sorted(results.items())}
+    results = RunResults.of_run(folder, config.joint).final()
+    return {k.index: score_state(r.state, clip, k.index, config, may_flip=False) for k, r in sorted(results.items())}
 
 
 def score_table(scores: dict[int, FrameScore]) -> str:

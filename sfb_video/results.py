@@ -29,6 +29,28 @@ from sfb_video.model.trajectory import Trajectory
 from sfb_video.run_folder import FRAMES, WINDOWS, ensure_folder, frame_path, window_path
 
 
+@dataclass(frozen=True, order=True)
+class FrameKey:
+    """What names one fitted object of a run: its frame's index and its track's number."""
+
+    index: int
+    track: int
+
+    def path(self, folder: Path) -> Path:
+        return frame_path(folder, self.index, self.track)
+
+
+@dataclass(frozen=True, order=True)
+class WindowKey:
+    """What names one joint window of a run: its track's number and its first frame."""
+
+    track: int
+    first: int
+
+    def path(self, folder: Path) -> Path:
+        return window_path(folder, self.track, self.first)
+
+
 @dataclass(frozen=True)
 class FrameResult:
     """The fit of one frame of a clip.
@@ -70,9 +92,8 @@ class FrameResult:
     track: int = 0
 
     @property
-    def key(self) -> tuple[int, int]:
-        """(frame index, track): what names this result in a run folder."""
-        return self.index, self.track
+    def key(self) -> FrameKey:
+        return FrameKey(self.index, self.track)
 
     def reversed(self) -> FrameResult:
         """The same fit with its motion (and its sub-frame masks) run backwards in time."""
@@ -143,7 +164,7 @@ def load_result(path: Path) -> FrameResult:
         raise SfbError(f"cannot read the frame result {path}: {exc}") from None
 
 
-def load_results(folder: Path) -> dict[tuple[int, int], FrameResult]:
+def load_results(folder: Path) -> dict[FrameKey, FrameResult]:
     """Every object fit saved in a run ``folder``, by (frame index, track)."""
     results = (load_result(p) for p in sorted((folder / FRAMES).glob("frame_*.pt")))
     return {r.key: r for r in results}
@@ -174,9 +195,8 @@ class SavedWindow:
         return sorted(self.result.losses)
 
     @property
-    def key(self) -> tuple[int, int]:
-        """(first frame, track): what names this window in a run folder."""
-        return self.frames[0], self.track
+    def key(self) -> WindowKey:
+        return WindowKey(self.track, self.frames[0])
 
 
 def save_window(folder: Path, window: SavedWindow) -> None:

@@ -34,21 +34,19 @@ from sfb_video.model.scene import ObjectState
 from sfb_video.model.trajectory import Trajectory
 from sfb_video.recording import Recorder
 from sfb_video.registration import to_frame, unwarp
-from sfb_video.results import FrameResult, SavedWindow, load_result, load_window
+from sfb_video.results import FrameKey, FrameResult
 from sfb_video.run_folder import (
     BEST_MESH,
     MESHES,
     TSR_VIDEO,
     ensure_folder,
-    frame_path,
     mesh_path,
     track_mesh_path,
-    window_path,
 )
 from sfb_video.stages.composite import BLUR_POSES, explained, fitted_region, region_box
 from sfb_video.stages.detect import difference_image, threshold_difference
-from sfb_video.stages.types import FrameStatus, FrameWithBackground, Registered
-from sfb_video.stages.windows import with_joint
+from sfb_video.stages.run_results import RunResults, with_joint
+from sfb_video.stages.types import FrameWithBackground, Registered
 from sfb_video.video import OUTPUT_PRESET, VideoWriter
 
 
@@ -424,8 +422,8 @@ class Exported:
 
     video_frames: int = 0
     rows: list[dict[str, float | int | str]] = field(default_factory=list)
-    fits: dict[tuple[int, int], dict[str, Any]] = field(default_factory=dict)
-    best: tuple[int, int] | None = None
+    fits: dict[FrameKey, dict[str, Any]] = field(default_factory=dict)
+    best: FrameKey | None = None
 
 
 def _mask_order(result: FrameResult) -> str | None:
@@ -456,32 +454,10 @@ def _fit_record(result: FrameResult, speed: float, diameter: float | None) -> di
     return record
 
 
-class _Windows:
-    """The joint fits of a run, loaded one window at a time per track as the frames stream past;
-    ``owner``: (frame index, track) -> the key of the window that stands for it
-    (:func:`~sfb_video.stages.windows.shown_windows`)."""
-
-    def __init__(self, folder: Path, owner: dict[tuple[int, int], tuple[int, int]]) -> None:
-        self.folder, self.owner = folder, owner
-        self.loaded: dict[int, SavedWindow] = {}
-
-    def of(self, key: tuple[int, int]) -> SavedWindow | None:
-        """The window whose joint fit stands for object ``key`` (frame index, track), or None."""
-        owner = self.owner.get(key)
-        if owner is None:
-            return None
-        first, track = owner
-        window = self.loaded.get(track)
-        if window is None or window.frames[0] != first:
-            window = self.loaded[track] = load_window(window_path(self.folder, track, first))
-        return window
-
-
 def export_frames(
     folder: Path,
     frames: Iterator[FrameWithBackground],
-    statuses: list[FrameStatus],
-    shown: dict[tuple[int, int], tuple[int, int]],
+    results: RunResults,
     camera: PinholeCamera,
     size: tuple[int, int],
     fps: float,
@@ -499,19 +475,14 @@ def export_frames(
     trajectory: dict[int, list[np.ndarray]] = {}
     best_loss = math.inf
     tracks: dict[int, tuple[float, ObjectState]] = {}
-    fitted: dict[int, list[FrameStatus]] = {}
-    for s in statuses:
-        if s.status == "fitted" and s.track is not None:
-            fitted.setdefault(s.index, []).append(s)
-    joint = _Windows(folder, shown)
     ensure_folder(folder / MESHES)
     with VideoWriter(folder / TSR_VIDEO, fps * n, *size, preset=OUTPUT_PRESET) as video:
         for frame in frames:
             recorder.log_frame(frame.index, frame.pixels, frame.background_pixels)
             difference = difference_image(frame.pixels, frame.background_pixels)
             mask = threshold_difference(difference, config.detect, frame.known)
-            present = [s for s in fitted.get(frame.index, []) if frame_path(folder, s.index, s.track).is_file()]
-            boxes = {s.track: s.box for s in present if s.box is not None}
+            present = results.saved(frame.index)
+            boxes = {s.track: s.box for s, _ in present if s.box is not None}
             recorder.log_detection(frame.index, boxes, mask)
             if not present:
                 for _ in range(n):
@@ -519,9 +490,9 @@ def export_frames(
                 recorder.log_subframes(frame.index, frame.pixels, [frame.pixels])
                 continue
             objects = []
-            for status in present:
-                single = load_result(frame_path(folder, status.index, status.track))
-                window = joint.of(single.key)
+            for _, single in present:
+                owner = results.shown_window(single.key)
+                window = None if owner is None else results.window(owner)
                 result = single if window is None else with_joint(single, window)
                 rendered = render_frame(frame, result, camera, n, config, difference)
                 objects.append((result, rendered))
@@ -541,7 +512,8 @@ def export_frames(
                     )
                     # The gap to the next frame is drawn where the next frame is shown from a
                     # window too, not from its single-frame fit (its window rejected).
-                    if frame.index + 1 in window.result.losses and (frame.index + 1, result.track) in joint.owner:
+                    later = FrameKey(frame.index + 1, result.track)
+                    if frame.index + 1 in window.result.losses and results.shown_window(later) is not None:
                         rows += gap_rows(window.result.trajectory, frame.index, camera, n, fps, diameter)
                 if mapped_back(frame, config):
                     assert frame.registered is not None and frame.registered.to_canvas is not None
@@ -565,8 +537,6 @@ def export_frames(
     for track, (_, state) in tracks.items():
         write_glb(state, track_mesh_path(folder, track))
     if done.best is not None:
-        single = load_result(frame_path(folder, *done.best))
-        window = joint.of(done.best)
-        best = single if window is None else with_joint(single, window)
+        best = results.shown(done.best)
         write_obj(best.state, ensure_folder(folder / BEST_MESH), name="mesh")
     return done

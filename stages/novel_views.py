@@ -21,7 +21,7 @@ from sfb_video.imageio import write_image
 from sfb_video.model.scene import ObjectState
 from sfb_video.render import MeshRenderer
 from sfb_video.run_folder import NOVEL_VIEWS, ensure_folder, novel_view_path
-from sfb_video.stages.process import final_results
+from sfb_video.stages.run_results import RunResults
 from sfb_video.video import OUTPUT_PRESET, VideoWriter
 
 SIZE = (320, 240)
@@ -54,24 +54,24 @@ def turntable(state: ObjectState, views: int, config: Config, background: float 
 def write_novel_views(folder: Path, config: Config, frames: list[int], views: int) -> list[Path]:
     """Turntables of the meshes of every object in ``frames`` (the best object when empty);
     returns the videos written."""
-    results = final_results(folder, config)
+    results = RunResults.of_run(folder, config.joint).final()
     if not results:
         raise SfbError(f"{folder} holds no fitted frame to render")
     if views < 2:
         raise SfbError(f"--views must be at least 2, got {views}")
-    fitted = sorted({index for index, _ in results})
+    fitted = sorted({key.index for key in results})
     if not frames:
         keys = [min(results.values(), key=lambda r: r.losses["image"]).key]
     else:
         missing = [f for f in frames if f not in fitted]
         if missing:
             raise SfbError(f"frame {missing[0]} was not fitted; fitted frames: {fitted}")
-        keys = sorted(k for k in results if k[0] in frames)
+        keys = sorted(k for k in results if k.index in frames)
     written = []
     for key in keys:
         images = turntable(results[key].state, views, config)
         ensure_folder(folder / NOVEL_VIEWS)
-        path = novel_view_path(folder, *key)
+        path = novel_view_path(folder, key.index, key.track)
         with VideoWriter(path, 24.0, SIZE[0], SIZE[1], preset=OUTPUT_PRESET) as video:
             for image in images:
                 video.write(image)

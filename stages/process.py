@@ -26,39 +26,28 @@ from sfb_video.errors import SfbError, printable
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.recording import Recorder
 from sfb_video.registration import CameraMotion
-from sfb_video.results import FrameResult, SavedWindow, load_result, load_window
+from sfb_video.results import FrameResult, SavedWindow
 from sfb_video.run_folder import (
     CAMERA_MOTION,
     CONFIG,
-    DETECTIONS,
-    MARKER,
     OUTPUTS,
     RECORDING,
     SUMMARY,
     TRAJECTORY,
     RunFolder,
-    frame_path,
     open_run,
     read_marker,
     saved_frames,
-    window_path,
 )
 from sfb_video.stages.background import frames_read, with_backgrounds
 from sfb_video.stages.export import Exported, export_frames, write_csv
 from sfb_video.stages.masks import MaskSource, choose_masks, print_line
 from sfb_video.stages.read import check_video, probe, select_frames
 from sfb_video.stages.register import camera_motion
+from sfb_video.stages.run_results import FolderSource, RunResults, read_run, write_statuses
 from sfb_video.stages.track import track_and_fit
-from sfb_video.stages.types import FrameStatus, Window
-from sfb_video.stages.windows import (
-    fit_windows,
-    shown_windows,
-    touched_blobs,
-    track_windows,
-    trusted_frames,
-    window_key,
-    with_joint,
-)
+from sfb_video.stages.types import FrameStatus, Status
+from sfb_video.stages.windows import fit_windows
 from sfb_video.timing import timed
 from sfb_video.video import VideoInfo
 
@@ -137,74 +126,6 @@ def _run_record(options: ProcessOptions, frames: range | None, config: Config, m
     return record
 
 
-def write_statuses(folder: Path, statuses: list[FrameStatus]) -> None:
-    """Save what happened to every frame (``detections.json``), for the exports to read."""
-    write_json(folder / DETECTIONS, [dataclasses.asdict(s) for s in statuses])
-
-
-def read_run(folder: Path) -> tuple[dict, list[FrameStatus]]:
-    """The run record and frame statuses of a run folder whose fitting has finished."""
-    try:
-        record = json.loads((folder / MARKER).read_text())
-        rows = json.loads((folder / DETECTIONS).read_text())
-    except FileNotFoundError:
-        raise SfbError(f"{folder} is not a run folder whose frames are all fitted (run sfb-video process)") from None
-    except (OSError, json.JSONDecodeError) as exc:
-        raise SfbError(f"cannot read the run in {folder}: {exc}") from None
-    return record, [
-        FrameStatus(
-            r["index"],
-            r["status"],
-            None if r["box"] is None else tuple(r["box"]),
-            r["note"],
-            r.get("track"),
-            r.get("touched", False),
-        )
-        for r in rows
-    ]
-
-
-def run_windows(
-    folder: Path, statuses: list[FrameStatus], config: Config
-) -> tuple[list[Window], dict[tuple[int, int], tuple[int, int]]]:
-    """A run's saved windows (accepted or not), and (frame index, track) -> the key of the window
-    whose joint fit its outputs show (:func:`~sfb_video.stages.windows.shown_windows`)."""
-    windows = track_windows(statuses, config.joint.window, config.joint.overlap) if config.joint.enabled else []
-    # A window whose joint fit diverged was not saved, and one that explains its frames worse
-    # than their single-frame fits is not accepted: their frames keep the single-frame fits, as
-    # does a frame that an accepted window explains far worse.
-    saved = [w for w in windows if window_path(folder, w[0], w[1][0]).is_file()]
-    _, touched = touched_blobs(statuses)
-    trusted: dict[tuple[int, int], set[int]] = {}
-    for track, members in saved:
-        window = load_window(window_path(folder, track, members[0]))
-        held = [i for i in members if (i, track) in touched]
-        trusted[window_key((track, members))] = trusted_frames(window, config.joint.max_explained_drop, held)
-    return saved, shown_windows(windows, trusted)
-
-
-def final_results(folder: Path, config: Config) -> dict[tuple[int, int], FrameResult]:
-    """Every object fitted in a run folder (its tracks not dropped), by (frame index, track), as
-    its outputs show it: from the window that stands for it where that window's joint fit was
-    accepted and explains the frame well enough, else its single-frame fit (:func:`run_windows`)."""
-    _, statuses = read_run(folder)
-    _, shown = run_windows(folder, statuses, config)
-    windows: dict[tuple[int, int], SavedWindow] = {}
-    results = {}
-    for status in statuses:
-        if status.status != "fitted":
-            continue
-        key = (status.index, status.track)
-        result = load_result(frame_path(folder, status.index, status.track))
-        owner = shown.get(key)
-        if owner is not None:
-            if owner not in windows:
-                windows[owner] = load_window(window_path(folder, owner[1], owner[0]))
-            result = with_joint(result, windows[owner])
-        results[key] = result
-    return results
-
-
 @timed("export")
 def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu") -> dict:
     """Write every export of a run whose frames are fitted, ``summary.json`` last; return the summary."""
@@ -221,16 +142,16 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     # tsr.mp4 shows each frame as filmed, or (stabilised) the canvas as the camera renders it.
     size = (camera.width, camera.height) if config.camera.stabilised else (info.width, info.height)
     stream = with_backgrounds(video, config.video, info.frame_count, frames, background, motion)
-    saved, shown = run_windows(folder, statuses, config)
+    results = RunResults(statuses, FolderSource(folder), config.joint)
     diameter = record["object_diameter"]
     name = printable(video.stem)
     with Recorder(folder / RECORDING, camera, name, subframes=tsr) as recorder:
-        done = export_frames(folder, stream, statuses, shown, camera, size, info.fps, tsr, config, diameter, recorder)
+        done = export_frames(folder, stream, results, camera, size, info.fps, tsr, config, diameter, recorder)
         write_csv(folder / TRAJECTORY, done.rows)
         summary = _summary(record, info, statuses, done, tsr, device_note, config.video.min_explained)
         summary["tracks"] = _track_summary(statuses, done)
         summary["camera"] = _camera_summary(motion)
-        summary["joint"] = _joint_summary(folder, saved, shown)
+        summary["joint"] = _joint_summary(results)
         recorder.log_run(config_to_dict(config), summary)
     write_json(folder / SUMMARY, summary)
     return summary
@@ -245,10 +166,10 @@ def _summary(
     device_note: str,
     min_explained: float,
 ) -> dict:
-    frames = [dataclasses.asdict(s) | done.fits.get((s.index, s.track), {}) for s in statuses]  # type: ignore[arg-type]
+    frames = [dataclasses.asdict(s) | done.fits.get(s.key, {}) for s in statuses]  # type: ignore[arg-type]
     fits = list(done.fits.values())
     read = {s.index for s in statuses}
-    fitted = {index for index, _ in done.fits}
+    fitted = {key.index for key in done.fits}
 
     def mean(key: str, start: str | None = None) -> float | None:
         values = [f[key] for f in fits if start in (None, f["start"])]
@@ -262,18 +183,18 @@ def _summary(
         "frames_read": len(read),
         "frames_fitted": len(fitted),
         "objects_fitted": len(fits),
-        "frames_without_object": len({s.index for s in statuses if s.status == "no_object"} - fitted),
+        "frames_without_object": len({s.index for s in statuses if s.status == Status.NO_OBJECT} - fitted),
         "frames_with_other_movers": len({s.index for s in statuses if "other moving object" in s.note}),
-        "dropped_tracks": sorted({s.track for s in statuses if s.status == "dropped"}),
+        "dropped_tracks": sorted({s.track for s in statuses if s.status == Status.DROPPED}),
         "cold_starts": sum(f["start"] == "cold" for f in fits),
         "warm_starts": sum(f["start"] == "warm" for f in fits),
         "mean_seconds_cold": mean("seconds", "cold"),
         "mean_seconds_warm": mean("seconds", "warm"),
         "mean_image_loss": None if not fits else sum(f["losses"]["image"] for f in fits) / len(fits),
-        "unexplained_frames": sorted({i for (i, _), f in done.fits.items() if f["explained"] < min_explained}),
+        "unexplained_frames": sorted({k.index for k, f in done.fits.items() if f["explained"] < min_explained}),
         "min_explained": min_explained,
-        "best_frame": None if done.best is None else done.best[0],
-        "best_track": None if done.best is None else done.best[1],
+        "best_frame": None if done.best is None else done.best.index,
+        "best_track": None if done.best is None else done.best.track,
         "tsr": tsr,
         "tsr_video_frames": done.video_frames,
         "object_diameter_m": record["object_diameter"],
@@ -288,14 +209,14 @@ def _track_summary(statuses: list[FrameStatus], done: Exported) -> list[dict]:
     """What summary.json says of each track: its frames, its prototype (the last frame's), its
     median speed and mean ``explained``."""
     rows = []
-    for track in sorted({t for _, t in done.fits}):
-        fits = {i: f for (i, t), f in sorted(done.fits.items()) if t == track}
+    for track in sorted({key.track for key in done.fits}):
+        fits = {key.index: f for key, f in sorted(done.fits.items()) if key.track == track}
         speeds = sorted(f["speed_sizes_per_s"] for f in fits.values())
         rows.append(
             {
                 "track": track,
                 "frames": sorted(fits),
-                "merged_frames": sorted(s.index for s in statuses if s.track == track and s.status == "merged"),
+                "merged_frames": sorted(s.index for s in statuses if s.track == track and s.status == Status.MERGED),
                 "prototype": fits[max(fits)]["prototype"],
                 "speed_sizes_per_s": speeds[len(speeds) // 2],
                 "explained": sum(f["explained"] for f in fits.values()) / len(fits),
@@ -320,20 +241,19 @@ def _mean(values: list[float]) -> float | None:
     return sum(values) / len(values) if values else None
 
 
-def _joint_summary(
-    folder: Path, windows: list[tuple[int, list[int]]], shown: dict[tuple[int, int], tuple[int, int]]
-) -> dict:
-    """What summary.json says of the joint fits: per window its frames, those it stands for
-    (``shown``: (frame index, track) -> the window's key, :func:`run_windows`), motion model,
-    exposure fraction, prototype (and the candidates' trial losses, the trial of shapes' scores
-    and how clearly its shape won), and the mean L_I before and after."""
+def _joint_summary(results: RunResults) -> dict:
+    """What summary.json says of the joint fits: per saved window its frames, those it stands
+    for, motion model, exposure fraction, prototype (and the candidates' trial losses, the trial
+    of shapes' scores and how clearly its shape won), and the mean L_I before and after."""
     rows = []
-    for track, frames in windows:
-        saved = load_window(window_path(folder, track, frames[0]))
-        joint = saved.result
+    for window in results.windows:
+        saved = results.window(window.key)
+        if saved is None:  # its fit diverged
+            continue
+        joint, frames = saved.result, list(window.frames)
         rows.append(
             {
-                "track": track,
+                "track": window.track,
                 "frames": frames,
                 "model": joint.trajectory.model,
                 "bounce_frame": None if joint.bounce is None else frames[0] + joint.bounce,
@@ -348,13 +268,13 @@ def _joint_summary(
                 "explained_before": _mean([saved.explained[i][0] for i in frames if i in saved.explained]),
                 "explained_after": _mean([saved.explained[i][1] for i in frames if i in saved.explained]),
                 "accepted": saved.accepted,
-                "shown_frames": [i for i in frames if shown.get((i, track)) == (frames[0], track)],
+                "shown_frames": results.shown_frames(window),
                 "seconds": joint.seconds,
             }
         )
     fractions = sorted(r["exposure_fraction"] for r in rows if r["accepted"])
     return {
-        "enabled": bool(windows),
+        "enabled": bool(results.windows),
         "windows_accepted": sum(r["accepted"] for r in rows),
         "windows_rejected": sum(not r["accepted"] for r in rows),
         "exposure_fraction": fractions[len(fractions) // 2] if fractions else None,
@@ -476,9 +396,9 @@ def _process(
     if not statuses:
         raise SfbError(f"{printable(str(options.video))}: no frames in the requested range")
     if config.joint.enabled:
-        windows = track_windows(statuses, config.joint.window, config.joint.overlap)
+        results = RunResults(statuses, FolderSource(run.work), config.joint)
         frames = with_backgrounds(options.video, config.video, info.frame_count, selected, options.background, motion)
-        with tqdm(total=len(windows), unit="window", desc="joint fit", disable=True if quiet else None) as bar:
+        with tqdm(total=len(results.windows), unit="window", desc="joint fit", disable=True if quiet else None) as bar:
 
             def report_window(window: SavedWindow) -> None:
                 bar.update(1)
@@ -487,6 +407,6 @@ def _process(
                     e=f"{window.result.trajectory.exposure_fraction:.2f}",
                 )
 
-            fit_windows(frames, run.work, statuses, camera, config, device, report_window)
+            fit_windows(frames, run.work, results, camera, config, device, report_window)
     write_statuses(run.work, statuses)
     return export_run(run.work, config, config.video.tsr, str(device))

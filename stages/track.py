@@ -52,7 +52,7 @@ from sfb_video.stages.detect import (
 from sfb_video.stages.fit import continued, fit_detection
 from sfb_video.stages.masks import MaskSource
 from sfb_video.stages.register import mask_onto_next, segment_of, usable
-from sfb_video.stages.types import Detection, Frame, FrameStatus, FrameWithBackground, Prediction
+from sfb_video.stages.types import Detection, Frame, FrameStatus, FrameWithBackground, Prediction, Status
 
 StepReport = Callable[[FrameStatus, FrameResult | None], None]
 T = TypeVar("T")
@@ -617,7 +617,7 @@ def track_and_fit(
             live, segment = [], segment_of(frame)
         if not usable(frame):
             live = []
-            statuses.append(FrameStatus(frame.index, "failed", note=frame.registered.note))
+            statuses.append(FrameStatus(frame.index, Status.FAILED, note=frame.registered.note))
             if report is not None:
                 report(statuses[-1], None)
             continue
@@ -690,7 +690,7 @@ def track_and_fit(
                 result = loaded or fit_detection(frame, detection, camera, config, start, device, masks, before)
             except NoObjectError as exc:
                 tracker.lose()
-                results.append(FrameStatus(frame.index, "no_object", detection.box, str(exc)))
+                results.append(FrameStatus(frame.index, Status.NO_OBJECT, detection.box, str(exc)))
                 report_result = None
             else:
                 shared = bool(claim.shared_with)
@@ -701,7 +701,7 @@ def track_and_fit(
                     save_result(folder, result)
                 if tracker not in live:
                     live.append(tracker)
-                results.append(FrameStatus(frame.index, "fitted", detection.box, note, track, shared))
+                results.append(FrameStatus(frame.index, Status.FITTED, detection.box, note, track, shared))
                 fits.append((claim, _HeldFit(tracker, track, claim.prediction, claim.part, start, before)))
                 if not shared and tracker.length == _proven(config):
                     proven.append(tracker)
@@ -712,10 +712,12 @@ def track_and_fit(
             if tracker.previous is not None:
                 into = owner[label].number
                 results.append(
-                    FrameStatus(frame.index, "merged", None, f"its streak merged into track {into}'s", tracker.number)
+                    FrameStatus(
+                        frame.index, Status.MERGED, None, f"its streak merged into track {into}'s", tracker.number
+                    )
                 )
         if not results:
-            results.append(FrameStatus(frame.index, "no_object"))
+            results.append(FrameStatus(frame.index, Status.NO_OBJECT))
             if report is not None:
                 report(results[-1], None)
         statuses += sorted(results, key=lambda r: -1 if r.track is None else r.track)
@@ -976,7 +978,7 @@ def _look_back(
             fit.part = part
             others = ", ".join(str(f.number) for f in fits if f is not fit)
             note = f"its streak touched track(s) {others}'s: their pixels shared out by nearness, looking back"
-            restated.append(FrameStatus(index, "fitted", detection.box, note, fit.number, True))
+            restated.append(FrameStatus(index, Status.FITTED, detection.box, note, fit.number, True))
         blob.fits.append(fits[-1])
         tracker.length += 1
         later = results[-1]
@@ -1092,14 +1094,14 @@ def _restated(statuses: list[FrameStatus], changed: list[FrameStatus]) -> list[F
 def short_tracks_dropped(statuses: list[FrameStatus], least: int) -> list[FrameStatus]:
     """``statuses`` with every track fitted in fewer than ``least`` frames ``dropped`` (its fits
     stay saved, for a resumed run to reuse), unless no track is longer: then the longest is kept."""
-    lengths = Counter(s.track for s in statuses if s.status == "fitted")
+    lengths = Counter(s.track for s in statuses if s.status == Status.FITTED)
     kept = {t for t, n in lengths.items() if n >= least}
     if lengths and not kept:
         kept = {min(lengths, key=lambda t: (-lengths[t], t))}
     out = []
     for s in statuses:
-        if s.track is not None and s.track not in kept and s.status in ("fitted", "merged"):
+        if s.track is not None and s.track not in kept and s.status in (Status.FITTED, Status.MERGED):
             note = f"track {s.track} was fitted in {lengths[s.track]} frame(s), fewer than video.min_track_frames"
-            s = dataclasses.replace(s, status="dropped", note=note)
+            s = dataclasses.replace(s, status=Status.DROPPED, note=note)
         out.append(s)
     return out

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 import torch
 
 from sfb_video.crop import Box
 from sfb_video.imageio import as_float
+from sfb_video.results import FrameKey, WindowKey
 
 
 @dataclass(frozen=True)
@@ -140,6 +142,16 @@ class Prediction:
     fallback: bool = False
 
 
+class Status(StrEnum):
+    """What happened to one object of a frame, spelt as ``detections.json`` spells it."""
+
+    FITTED = "fitted"
+    NO_OBJECT = "no_object"
+    FAILED = "failed"
+    MERGED = "merged"  # its streak merged into another track's blob: the track coasts
+    DROPPED = "dropped"  # its track was too short to keep
+
+
 @dataclass(frozen=True)
 class FrameStatus:
     """What happened to one frame: ``fitted``, ``no_object`` or ``failed`` (with the reason),
@@ -148,12 +160,30 @@ class FrameStatus:
     (not where another track's streak merged whole into this one's blob: that track coasts)."""
 
     index: int
-    status: str
+    status: Status
     box: tuple[int, int, int, int] | None = None
     note: str = ""
     track: int | None = None
     touched: bool = False
 
+    def __post_init__(self) -> None:
+        # A status read back from JSON is its spelling; a typo fails here, not in a comparison.
+        object.__setattr__(self, "status", Status(self.status))
 
-Window = tuple[int, list[int]]
-"""A window: its track's number and its frame indices, consecutive."""
+    @property
+    def key(self) -> FrameKey | None:
+        """The (frame, track) of its object, or None for a frame without a track."""
+        return None if self.track is None else FrameKey(self.index, self.track)
+
+
+@dataclass(frozen=True)
+class Window:
+    """A window of a track: its number and its frame indices, consecutive, that one joint fit
+    covers (:func:`~sfb_video.stages.run_results.track_windows`)."""
+
+    track: int
+    frames: tuple[int, ...]
+
+    @property
+    def key(self) -> WindowKey:
+        return WindowKey(self.track, self.frames[0])

@@ -13,18 +13,15 @@ later window starts from its predecessor's mesh, texture and poses on the frames
 a track keeps one shape. Each window's frames are then refined from its fit (``joint.refine``;
 those whose streak touched another object's, for their texture only).
 
-Every export then reads a frame's state from the window that covers it best (the one whose
-middle is nearest, :func:`frame_windows`), where that window was accepted and explains the frame
-not much worse than its single-frame fit; else from the frame's single-frame fit
-(:func:`shown_windows`).
+Which fit each frame's outputs then show, the window's or the single-frame one, is
+:class:`~sfb_video.stages.run_results.RunResults`' rule.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import sys
-from collections import Counter
-from collections.abc import Callable, Collection, Iterator, Mapping
+from collections.abc import Callable, Collection, Iterator
 from pathlib import Path
 
 import cv2
@@ -32,172 +29,18 @@ import numpy as np
 import torch
 
 from sfb_video.config import Config
-from sfb_video.crop import Box, box_mask, box_union, make_crop, masks_onto
-from sfb_video.errors import DivergenceError
+from sfb_video.crop import Box, box_mask, make_crop, masks_onto
+from sfb_video.errors import DivergenceError, SfbError
 from sfb_video.fitting.path import Seed
 from sfb_video.fitting.window import WindowFrame, fit_window, refine_frames
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.scene import ObjectState
-from sfb_video.results import (
-    FrameResult,
-    SavedWindow,
-    load_result,
-    load_window,
-    save_window,
-)
-from sfb_video.run_folder import frame_path, window_path
+from sfb_video.results import FrameKey, FrameResult, SavedWindow, save_window
 from sfb_video.stages.composite import fit_quality, object_radius, path_mask
 from sfb_video.stages.detect import parallel
-from sfb_video.stages.types import FrameStatus, FrameWithBackground, Window
+from sfb_video.stages.run_results import RunResults
+from sfb_video.stages.types import FrameWithBackground
 from sfb_video.timing import timed
-
-
-def track_windows(statuses: list[FrameStatus], size: int, overlap: int) -> list[Window]:
-    """The windows of every track of two fitted frames or more, by first frame (then track).
-
-    Args:
-        statuses: every frame's objects' statuses, in frame order.
-        size: frames per window; overlap: frames a window shares with the previous one.
-    """
-    runs: list[Window] = []
-    last: dict[int, Window] = {}  # track -> its latest run
-    for s in statuses:
-        if s.status != "fitted" or s.track is None:
-            continue
-        run = last.get(s.track)
-        if run is not None and run[1][-1] == s.index - 1:
-            run[1].append(s.index)
-        else:
-            last[s.track] = (s.track, [s.index])
-            runs.append(last[s.track])
-    windows: list[Window] = []
-    for track, frames in runs:
-        if len(frames) < 2:
-            continue
-        starts = list(range(0, max(1, len(frames) - overlap), size - overlap))
-        starts = sorted({min(s, max(0, len(frames) - size)) for s in starts})
-        windows += [(track, frames[s : s + size]) for s in starts]
-    return sorted(windows, key=window_key)
-
-
-def window_key(window: Window) -> tuple[int, int]:
-    """(first frame, track): what names a window in a run folder."""
-    return window[1][0], window[0]
-
-
-def frame_windows(windows: list[Window]) -> dict[tuple[int, int], tuple[int, int]]:
-    """(frame index, track) -> the key of the track's window that covers the frame with the most
-    frames on both sides (its middle nearest; the later window on a tie)."""
-    owner: dict[tuple[int, int], tuple[float, tuple[int, int]]] = {}
-    for track, frames in windows:
-        middle = (frames[0] + frames[-1]) / 2
-        for index in frames:
-            distance = abs(index - middle)
-            if (index, track) not in owner or distance <= owner[index, track][0]:
-                owner[index, track] = (distance, (frames[0], track))
-    return {key: first for key, (_, first) in owner.items()}
-
-
-def shown_windows(
-    windows: list[Window], trusted: Mapping[tuple[int, int], Collection[int]]
-) -> dict[tuple[int, int], tuple[int, int]]:
-    """:func:`frame_windows` of every window fitted (``windows``), less the frames that their
-    window may not stand for (``trusted``: window key -> those it may, :func:`trusted_frames`;
-    none for a window not there): such a frame keeps its single-frame fit. A neighbour window
-    that also covers it was never judged there (only on the frames it stands for), and its pose
-    there may be far off."""
-    return {key: first for key, first in frame_windows(windows).items() if key[0] in trusted.get(first, ())}
-
-
-def trusted_frames(window: SavedWindow, max_drop: float, held: Collection[int] = ()) -> set[int]:
-    """The frames whose outputs ``window``'s joint fit may show: none where the window was not
-    accepted; else each frame but those it explains more than ``max_drop`` worse than their
-    single-frame fits. A window is accepted on its frames' mean, and a gain on one frame (which
-    takes in its neighbours' pixels) can hide a fit that lies off its streak on another. The
-    frames whose pose the window ``held`` (their streak touched another object's,
-    :func:`fit_track_window`) are its own also where it explains less, as long as it explains at
-    least half as much as the single-frame fit: that fit, drawn to the other object's pixels,
-    explains more and lies off (the crossing of ``benchmarks.multi_object``: 0.53 against the
-    window's 0.32), but a window that loses more has lost the object (falling_three's objects
-    landing in the bowl: 0.36 against 0.06)."""
-    if not window.accepted:
-        return set()
-    explained = window.explained
-
-    def kept(i: int) -> bool:
-        if i not in explained:
-            return True
-        before, after = explained[i]
-        bar = before - max_drop
-        return after >= (min(bar, before / 2) if i in held else bar)
-
-    return {i for i in window.frames if kept(i)}
-
-
-def previous_window(
-    windows: list[Window], done: dict[tuple[int, int], SavedWindow], track: int, first: int
-) -> SavedWindow | None:
-    """The last accepted window of ``track`` before the one that starts at frame ``first``, or
-    None."""
-    earlier = [window_key(w) for w in windows if w[0] == track and w[1][0] < first]
-    return next((done[k] for k in reversed(earlier) if k in done and done[k].accepted), None)
-
-
-def with_joint(result: FrameResult, window: SavedWindow) -> FrameResult:
-    """Frame ``result`` with the window's object and pose in place of its single-frame fit."""
-    joint = window.result
-    return dataclasses.replace(
-        result,
-        state=joint.state(result.index),
-        prototype=joint.prototype,
-        losses=joint.frame_losses(result.index),
-        curve=joint.curve,
-    )
-
-
-def shared_boxes(
-    parts: dict[tuple[int, int], tuple[int, int, int, int]],
-) -> dict[tuple[int, int], tuple[int, int, int, int]]:
-    """Per (frame, track) whose streak touched others' (its box a ``part`` of their shared blob),
-    the box of the whole blob: the union of the parts' boxes of that frame that touch it, in
-    turn. A part can be a sliver where two streaks lie one over the other; the window's crop
-    around it would cut off the object's streak (the others' are left out, :func:`others_region`)."""
-    out = {}
-    for (index, track), box in parts.items():
-        union = box
-        grown = True
-        while grown:
-            grown = False
-            for (i, _), other in parts.items():
-                if i == index and _touch(union, other) and box_union(union, other) != union:
-                    union, grown = box_union(union, other), True
-        out[index, track] = union
-    return out
-
-
-def touched_blobs(
-    statuses: list[FrameStatus],
-) -> tuple[dict[tuple[int, int], tuple[int, int, int, int]], set[tuple[int, int]]]:
-    """Per (frame index, track) whose streak touched others' (dropped tracks' too), the box of
-    their whole blob (:func:`shared_boxes`); and the fitted objects whose blob still holds
-    another fitted object. A track dropped as too short
-    (:func:`~sfb_video.stages.track.short_tracks_dropped`) gives its share of a blob back:
-    falling_three's frame 10, a two-frame track born of a streak cut off at the frame's edge
-    took the lower half of the pale end's streak; held as touched, the pale end's window saw
-    half its streak, and the neighbour's window the other half."""
-    blobs = shared_boxes({(s.index, s.track): s.box for s in statuses if s.touched and s.box is not None})
-    fitted = [key for s in statuses if s.status == "fitted" and (key := (s.index, s.track)) in blobs]
-    holding = Counter((index, blobs[index, track]) for index, track in fitted)
-    return blobs, {(index, track) for index, track in fitted if holding[index, blobs[index, track]] > 1}
-
-
-def _touch(a: tuple[int, int, int, int], b: tuple[int, int, int, int], gap: int = 2) -> bool:
-    return (
-        a[0] <= b[0] + b[2] + gap
-        and b[0] <= a[0] + a[2] + gap
-        and a[1] <= b[1] + b[3] + gap
-        and b[1] <= a[1] + a[3] + gap
-    )
 
 
 def window_frame(
@@ -214,7 +57,7 @@ def window_frame(
     pixels, background = frame.pixels.to(device), frame.background_pixels.to(device)
     crop = make_crop(pixels, background, box, camera, config.crop, blob.to(device))
     masks = None if result.masks is None else result.masks.to(device)
-    if masks is not None and crop.box != result.crop_box:  # a touched frame's whole blob (shared_boxes)
+    if masks is not None and crop.box != result.crop_box:  # a touched frame's whole blob (run_results.shared_boxes)
         masks = masks_onto(masks, result.crop_box, crop)
     return WindowFrame(frame.index, crop, masks)
 
@@ -247,7 +90,7 @@ def object_paths(
 ) -> dict[int, ObjectPath]:
     """Per track, the :class:`ObjectPath` of its object fitted in one frame (``results``, by
     track) in ``camera``'s image; ``boxes``: its blob's box where not the fit's detection box (a
-    blob shared with a track since dropped, :func:`touched_blobs`)."""
+    blob shared with a track since dropped, :func:`~sfb_video.stages.run_results.touched_blobs`)."""
     paths = {}
     for track, result in results.items():
         motion = result.state.motion
@@ -320,8 +163,9 @@ def fit_track_window(
         crops: each member's crop (and sub-frame masks).
         single: frame index -> its single-frame fit.
         previous: the track's previous window, or None.
-        shown: the members whose outputs come from this window (:func:`frame_windows`); None:
-            every member. The others are shown from a neighbour, so refining them is wasted.
+        shown: the members whose outputs come from this window
+            (:meth:`~sfb_video.stages.run_results.RunResults.stands_for`); None: every member.
+            The others are shown from a neighbour, so refining them is wasted.
         touched: the members whose streak touched another object's: refined for their texture
             only, on the window's pose.
     """
@@ -376,7 +220,7 @@ def _quality(state: ObjectState, frame: WindowFrame, config: Config) -> float:
 def fit_windows(
     frames: Iterator[FrameWithBackground],
     folder: Path,
-    statuses: list[FrameStatus],
+    results: RunResults,
     camera: PinholeCamera,
     config: Config,
     device: torch.device,
@@ -387,77 +231,68 @@ def fit_windows(
 
     Args:
         frames: the clip's frames and backgrounds, in order (read only as far as needed).
-        statuses: every frame's status, as :func:`sfb_video.stages.track.track_and_fit` returned them.
+        results: the run's statuses and saved fits, read from ``folder``.
 
     Returns:
         every window's fit, in frame order (a window whose fit diverged is left out).
     """
-    windows = track_windows(statuses, config.joint.window, config.joint.overlap)
-    done: dict[tuple[int, int], SavedWindow] = {}
-    for window in windows:
-        path = window_path(folder, window[0], window[1][0])
-        if path.is_file():
-            done[window_key(window)] = load_window(path)
-    pending = [w for w in windows if window_key(w) not in done]
-    boxes = {(s.index, s.track): s.box for s in statuses if s.status == "fitted"}
-    shared, touched = touched_blobs(statuses)
-    boxes |= {k: b for k, b in shared.items() if k in boxes and b != boxes[k]}
-    fitted: dict[int, list[int]] = {}  # frame index -> its fitted tracks
-    for index, track in boxes:
-        if track is not None:
-            fitted.setdefault(index, []).append(track)
-    owner = frame_windows(windows)
-
-    def single(key: tuple[int, int]) -> FrameResult:
-        return load_result(frame_path(folder, *key))
-
-    crops: dict[tuple[int, int], WindowFrame] = {}
+    pending = [w for w in results.windows if results.window(w.key) is None]
+    touched = results.holding
+    crops: dict[FrameKey, WindowFrame] = {}
     needed: dict[int, set[int]] = {}  # frame index -> the tracks whose crops it gives
-    for track, members in pending:
-        for index in members:
-            needed.setdefault(index, set()).add(track)
+    for window in pending:
+        for index in window.frames:
+            needed.setdefault(index, set()).add(window.track)
+
     # A window is fitted once its last frame is read; several tracks' windows may wait at once.
     for frame in frames if pending else ():
-        keys = [(frame.index, t) for t in sorted(needed.get(frame.index, ()))]
-        results = {t: single((frame.index, t)) for t in fitted[frame.index]} if keys else {}
-        own_boxes = {t: box for t in results if (box := boxes[frame.index, t]) is not None}
-        paths = object_paths(results, camera, own_boxes) if len(results) > 1 else {}
-        apart = {t for t in paths if (frame.index, t) not in touched}
+        keys = [FrameKey(frame.index, t) for t in sorted(needed.get(frame.index, ()))]
+        fitted = results.fitted(frame.index) if keys else []
+        singles = {key.track: _single(results, key) for key, _ in fitted}
+        # A touched object's crop holds its whole blob (its box a part of it may be a sliver).
+        boxes = {key.track: results.blobs.get(key, s.box) for key, s in fitted}
+        own_boxes = {t: box for t, box in boxes.items() if box is not None}
+        paths = object_paths(singles, camera, own_boxes) if len(singles) > 1 else {}
+        apart = {t for t in paths if FrameKey(frame.index, t) not in touched}
         for key in keys:
-            box = boxes[key]
+            box = boxes[key.track]
             assert box is not None  # a fitted object has its detection
             # Several objects in the frame: the others show the background.
-            seen = frame.without(others_region(key[1], paths, apart)) if paths else frame
-            crops[key] = window_frame(seen, box, results[key[1]], camera, config, device)
-        ready = [w for w in pending if all((i, w[0]) in crops for i in w[1])]
-        for track, members in ready:
-            pending.remove((track, members))
-            previous = previous_window(windows, done, track, members[0])
-            own = {i: crops[i, track] for i in members}
+            seen = frame.without(others_region(key.track, paths, apart)) if paths else frame
+            crops[key] = window_frame(seen, box, singles[key.track], camera, config, device)
+        ready = [w for w in pending if all(FrameKey(i, w.track) in crops for i in w.frames)]
+        for window in ready:
+            pending.remove(window)
+            members = list(window.frames)
             try:
-                shown = [i for i in members if owner[i, track] == window_key((track, members))]
-                window = fit_track_window(
-                    track,
+                saved = fit_track_window(
+                    window.track,
                     members,
-                    own,
-                    lambda i, t=track: single((i, t)),
-                    previous,
+                    {i: crops[FrameKey(i, window.track)] for i in members},
+                    lambda i, t=window.track: _single(results, FrameKey(i, t)),
+                    results.previous(window),
                     camera,
                     config,
-                    shown,
-                    touched={i for i in members if (i, track) in touched},
+                    results.stands_for(window),
+                    touched=results.held(window),
                 )
             except DivergenceError as exc:
                 # Non-finite from the first step: the frames keep their single-frame fits.
                 print(f"joint fit of frames {members[0]}-{members[-1]} skipped: {exc}", file=sys.stderr)
             else:
-                save_window(folder, window)
-                done[window_key((track, members))] = window
+                save_window(folder, saved)
                 if report is not None:
-                    report(window)
+                    report(saved)
         if ready:
-            keep = {(i, t) for t, m in pending for i in m}
+            keep = {FrameKey(i, w.track) for w in pending for i in w.frames}
             crops = {k: c for k, c in crops.items() if k in keep}
         if not pending:
             break
-    return [done[window_key(w)] for w in windows if window_key(w) in done]
+    return [saved for w in results.windows if (saved := results.window(w.key)) is not None]
+
+
+def _single(results: RunResults, key: FrameKey) -> FrameResult:
+    single = results.single(key)
+    if single is None:
+        raise SfbError(f"the fit of track {key.track} in frame {key.index} is missing from the run")
+    return single

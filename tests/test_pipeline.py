@@ -74,7 +74,7 @@ def test_the_object_is_detected_and_fitted_in_every_frame(run: Run) -> None:
 
 
 def test_the_trajectory_is_continuous_between_frames(run: Run) -> None:
-    results = {i: r for (i, _), r in load_results(run.out).items()}  # one object
+    results = {k.index: r for k, r in load_results(run.out).items()}  # one object
     camera = run.clip.camera
     for k in range(1, len(results)):
         predicted = continue_motion(results[k - 1].state.motion, 1, run.config.video.exposure_fraction)
@@ -151,7 +151,7 @@ def test_the_track_is_fitted_jointly_and_the_outputs_follow_it(run: Run) -> None
 
 
 def test_saved_windows_are_reused_without_reading_the_clip(run: Run) -> None:
-    from sfb_video.stages.process import read_run
+    from sfb_video.stages.run_results import read_run
     from sfb_video.stages.windows import fit_windows
 
     _, statuses = read_run(run.out)

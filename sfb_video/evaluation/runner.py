@@ -31,21 +31,13 @@ from sfb_video.errors import DivergenceError, NoObjectError
 from sfb_video.evaluation.datasets import BenchmarkFrame
 from sfb_video.evaluation.scoring import render_estimate, score_estimate
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.results import FrameResult, SavedWindow
+from sfb_video.results import FrameKey, FrameResult
 from sfb_video.stages.fit import fit_detection
 from sfb_video.stages.masks import MaskSource
+from sfb_video.stages.run_results import MemorySource, RunResults
 from sfb_video.stages.track import Tracker, follow_box
-from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground
-from sfb_video.stages.windows import (
-    fit_track_window,
-    frame_windows,
-    previous_window,
-    shown_windows,
-    track_windows,
-    trusted_frames,
-    window_frame,
-    with_joint,
-)
+from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground, Status
+from sfb_video.stages.windows import fit_track_window, window_frame
 from sfb_video.synth import SyntheticClip
 
 MODES = ("per-frame", "video", "joint")
@@ -90,7 +82,7 @@ class FrameRow:
     def windowed(self) -> float:
         """In the joint mode, 1 where an accepted window stands for the frame, 0 where the frame
         kept its single-frame fit (a rejected window, or one that explains the frame far worse,
-        :func:`~sfb_video.stages.windows.trusted_frames`); NaN in the other modes."""
+        :func:`~sfb_video.stages.run_results.trusted_frames`); NaN in the other modes."""
         return float(self.status == "joint") if self.mode == "joint" else math.nan
 
 
@@ -243,7 +235,7 @@ def run_sequence(
             result = fit_benchmark_frame(inputs, frame.box, camera, config, warm, device, masks, earlier)
         except NoObjectError:
             row = FrameRow(sequence.dataset, sequence.name, frame.index, mode, "no_object", 0.0, 0.0, 0.0, 0.0)
-            statuses.append(FrameStatus(frame.index, "no_object"))
+            statuses.append(FrameStatus(frame.index, Status.NO_OBJECT))
             if tracker is not None:
                 tracker.lose()
         else:
@@ -252,7 +244,7 @@ def run_sequence(
             if tracker is not None:
                 track, result, reversed_previous = tracker.add(result, colour)
                 _reoriented(fitted, reversed_previous)
-            statuses.append(FrameStatus(frame.index, "fitted", frame.box, track=track))
+            statuses.append(FrameStatus(frame.index, Status.FITTED, frame.box, track=track))
             if mode == "joint":
                 fitted[frame.index] = (frame, result, seconds)
             if mode == "joint" and not with_video:
@@ -309,44 +301,44 @@ def _joint_rows(
 ) -> list[FrameRow]:
     """Fit the windows of the warm-started fits jointly and score every frame as the joint fit
     shows it; a frame's time is its single-frame fit's plus its share of each window's."""
-    windows = track_windows(statuses, config.joint.window, config.joint.overlap)
     tracks = {s.index: s.track for s in statuses}
-    done: dict[tuple[int, int], SavedWindow] = {}
+    keys = {i: FrameKey(i, track) for i, track in tracks.items() if track is not None and i in fitted}
+    source = MemorySource({key: fitted[i][1] for i, key in keys.items()})
+    # Joint mode fits its windows whatever the config's joint.enabled says.
+    results = RunResults(statuses, source, dataclasses.replace(config.joint, enabled=True))
     seconds = {i: s for i, (_, _, s) in fitted.items()}
-    stands_for = frame_windows(windows)
-    for track, members in windows:
+    for window in results.windows:
+        members = list(window.frames)
         crops = {}
         for i in members:
             frame, result, _ = fitted[i]
             crops[i] = window_frame(_inputs(frame), frame.box, result, camera, config, device)
-        previous = previous_window(windows, done, track, members[0])
         started = time.perf_counter()
         try:
-            done[members[0], track] = fit_track_window(
-                track,
+            saved = fit_track_window(
+                window.track,
                 members,
                 crops,
                 lambda i: fitted[i][1],
-                previous,
+                results.previous(window),
                 camera,
                 config,
-                [i for i in members if stands_for[i, track] == (members[0], track)],
+                results.stands_for(window),
             )
         except DivergenceError as exc:
             # Left out, as the pipeline leaves it out: its frames keep their single-frame fits.
             print(f"{sequence.name}: joint fit of frames {members[0]}-{members[-1]} skipped: {exc}", file=sys.stderr)
+        else:
+            source.add_window(saved)
         for i in members:
             seconds[i] += (time.perf_counter() - started) / len(members)
-    # One object a sequence: no streak touches another's, so no window holds a frame's pose.
-    owner = shown_windows(windows, {k: trusted_frames(w, config.joint.max_explained_drop) for k, w in done.items()})
     rows = list(unfitted)
     for index, (frame, result, _) in sorted(fitted.items()):
-        key = (index, tracks.get(index))
-        if key in owner:
-            result = with_joint(result, done[owner[key]])
+        owner = results.shown_window(keys[index])
+        result = results.shown(keys[index], result)
         estimate = estimate_subframes(result, frame, camera, config)
         scores = score_frame(frame, result, estimate, camera, clip)
-        start = "joint" if key in owner else result.start
+        start = "joint" if owner is not None else result.start
         row = FrameRow(
             sequence.dataset,
             sequence.name,

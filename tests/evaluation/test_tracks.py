@@ -13,8 +13,9 @@ from sfb_video.demo import write_clip_video
 from sfb_video.evaluation.runner import run_sequence
 from sfb_video.evaluation.synthetic_set import SyntheticSequence
 from sfb_video.results import load_results
-from sfb_video.stages.process import ProcessOptions, clip_camera, process_clip, read_run
+from sfb_video.stages.process import ProcessOptions, clip_camera, process_clip
 from sfb_video.stages.read import probe
+from sfb_video.stages.run_results import read_run
 from sfb_video.stages.track import join_gap, predict, ray_gap
 from sfb_video.synth import ClipSpec, generate_clip
 
@@ -48,7 +49,7 @@ def test_the_evaluation_and_process_build_the_same_tracks(tmp_path: Path) -> Non
     assert len(set(processed)) < len(processed)  # frames were joined into tracks
 
     # The rule the evaluation had, on process's own fits: it would have cut where the tracker joined.
-    fits = {i: r for (i, _), r in load_results(out).items()}  # one object
+    fits = {k.index: r for k, r in load_results(out).items()}  # one object
     camera = clip_camera(probe(video, config.video), config, None)
     e = config.video.exposure_fraction
     old_rule = [

@@ -1,9 +1,10 @@
-"""Cutting tracks into windows, choosing the window that stands for each frame, and choosing the
-motion model from the single-frame fits."""
+"""Fitting a track's windows: the motion model chosen from the single-frame fits, the frames each
+window is handed, refined and judged on, and the other objects of its frames left out."""
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -11,99 +12,37 @@ import numpy as np
 import pytest
 import torch
 
-from sfb_video.config import JointConfig, load_config
+from sfb_video.config import Config, JointConfig, load_config
 from sfb_video.errors import DivergenceError
 from sfb_video.fitting.path import Seed, choose_motion
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.prototypes import load_prototype
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
-from sfb_video.results import SavedWindow
+from sfb_video.results import FrameKey
 from sfb_video.stages import windows
+from sfb_video.stages.run_results import FolderSource, RunResults
 from sfb_video.stages.types import FrameStatus, FrameWithBackground
-from sfb_video.stages.windows import frame_windows, shared_boxes, shown_windows, track_windows, trusted_frames
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
 E = 0.6
 
 
-def _statuses(tracks: list[int | None]) -> list[FrameStatus]:
-    return [
-        FrameStatus(i, "no_object") if t is None else FrameStatus(i, "fitted", (0, 0, 4, 4), track=t)
-        for i, t in enumerate(tracks)
-    ]
+class _Saved:
+    """A run folder's saved fits as ``single`` makes them (by key); no window saved yet."""
+
+    def __init__(self, single: Callable[[FrameKey], object] = lambda key: SimpleNamespace(track=key.track)) -> None:
+        self.make = single
+
+    def single(self, key: FrameKey) -> object:
+        return self.make(key)
+
+    def window(self, key: object) -> None:
+        return None
 
 
-def test_tracks_are_cut_into_overlapping_windows_that_end_at_the_track_s_end() -> None:
-    statuses = _statuses([0] * 11 + [None, 1, 1, 1, None, 2, 3, 3])
-    windows = track_windows(statuses, size=6, overlap=2)
-    assert windows == [
-        (0, [0, 1, 2, 3, 4, 5]),
-        (0, [4, 5, 6, 7, 8, 9]),
-        (0, [5, 6, 7, 8, 9, 10]),
-        (1, [12, 13, 14]),  # a short track is one window
-        (3, [17, 18]),  # track 2 has one frame: nothing to fit jointly
-    ]
-
-
-def test_two_objects_in_the_same_frames_are_two_tracks_of_windows() -> None:
-    statuses = []
-    for i in range(8):
-        statuses += [FrameStatus(i, "fitted", (0, 0, 4, 4), track=0)]
-        if i >= 2:  # the second object enters at frame 2
-            statuses += [FrameStatus(i, "fitted", (9, 9, 4, 4), track=1)]
-    windows = track_windows(statuses, size=4, overlap=1)
-    assert windows == [
-        (0, [0, 1, 2, 3]),
-        (1, [2, 3, 4, 5]),
-        (0, [3, 4, 5, 6]),
-        (0, [4, 5, 6, 7]),
-        (1, [4, 5, 6, 7]),
-    ]
-
-
-def test_each_frame_is_shown_by_the_window_whose_middle_is_nearest() -> None:
-    owner = frame_windows([(0, [0, 1, 2, 3, 4, 5]), (0, [4, 5, 6, 7, 8, 9]), (1, [12, 13]), (2, [4, 5])])
-    assert [owner[i, 0] for i in range(10)] == [(0, 0)] * 5 + [(4, 0)] * 5
-    assert owner[12, 1] == owner[13, 1] == (12, 1) and (11, 1) not in owner
-    assert owner[4, 2] == owner[5, 2] == (4, 2)  # another object's window in the same frames
-
-
-def test_a_frame_whose_window_was_rejected_keeps_its_single_fit() -> None:
-    # falling_three frames 12-13: their window (frames 10-15) was rejected, and the previous
-    # window, never judged on them, drew its object there three times too large over the bowl.
-    windows_ = [(0, [0, 1, 2, 3, 4, 5]), (0, [4, 5, 6, 7, 8, 9]), (1, [4, 5])]
-    shown = shown_windows(windows_, {(0, 0): range(6), (4, 1): [4, 5]})
-    assert [shown.get((i, 0)) for i in range(10)] == [(0, 0)] * 5 + [None] * 5
-    assert shown[4, 1] == shown[5, 1] == (4, 1)
-
-
-def test_a_frame_its_window_explains_far_worse_keeps_its_single_fit() -> None:
-    # falling_three frame 13 (2026-12-06): the pale end's window was accepted on its mean
-    # (frame 11 rose -0.13 -> 0.66) while frame 13 fell 0.22 -> 0.06, its fit off the streak.
-    explained = {9: (0.40, 0.37), 10: (0.34, 0.61), 11: (-0.13, 0.66), 12: (0.66, 0.63), 13: (0.22, 0.06)}
-    # Only the frames the joint fit names are read here.
-    fit = SimpleNamespace(losses={i: {} for i in explained})
-    window = SavedWindow(2, fit, {}, explained, accepted=True)  # type: ignore[arg-type]
-    assert trusted_frames(window, 0.15) == {9, 10, 11, 12}
-    assert trusted_frames(window, 0.2) == {9, 10, 11, 12, 13}
-    assert trusted_frames(dataclasses.replace(window, accepted=False), 0.15) == set()
-    # Where its streak touched another object's, the window held the pose, and the frame's own
-    # fit, drawn to the other's pixels, explains more: the window stands there (the crossing).
-    crossing = dataclasses.replace(window, explained=explained | {13: (0.53, 0.32)})
-    assert trusted_frames(crossing, 0.15) == {9, 10, 11, 12}
-    assert trusted_frames(crossing, 0.15, held=[13]) == {9, 10, 11, 12, 13}
-    # Unless it explains less than half as much as the frame's own fit.
-    assert trusted_frames(window, 0.15, held=[13]) == {9, 10, 11, 12}
-    # Held is never judged more strictly than not held: 0.08 is less than half of 0.20, but
-    # within 0.15 of it.
-    near = dataclasses.replace(window, explained=explained | {13: (0.20, 0.08)})
-    assert trusted_frames(near, 0.15, held=[13]) == trusted_frames(near, 0.15) == {9, 10, 11, 12, 13}
-    # A frame the window was not judged on (a window saved before the judgement) is its own.
-    unjudged = dataclasses.replace(window, explained={i: e for i, e in explained.items() if i != 13})
-    assert trusted_frames(unjudged, 0.15) == {9, 10, 11, 12, 13}
-    shown = shown_windows([(2, [9, 10, 11, 12, 13])], {(9, 2): trusted_frames(window, 0.15)})
-    assert sorted(shown) == [(i, 2) for i in (9, 10, 11, 12)]
+def _results(statuses: list[FrameStatus], config: Config, source: object | None = None) -> RunResults:
+    return RunResults(statuses, source or _Saved(), config.joint)  # type: ignore[arg-type]
 
 
 def _seeds(path: list[torch.Tensor]) -> list[Seed]:
@@ -156,8 +95,8 @@ def test_only_a_divergence_skips_a_window_and_any_other_error_is_raised(
     statuses = [FrameStatus(i, "fitted", (0, 0, 4, 4), track=0) for i in range(3)]
     frames = [FrameWithBackground(i, torch.zeros(3, 8, 8), torch.zeros(3, 8, 8)) for i in range(3)]
     camera = PinholeCamera.from_fov(8, 8, 45.0)
-    monkeypatch.setattr(windows, "load_result", lambda path: None)
     monkeypatch.setattr(windows, "window_frame", lambda *args: None)
+    results = _results(statuses, config)
 
     def fails_with(error: Exception) -> None:
         def fit(*args: object, **kwargs: object) -> None:
@@ -166,12 +105,12 @@ def test_only_a_divergence_skips_a_window_and_any_other_error_is_raised(
         monkeypatch.setattr(windows, "fit_track_window", fit)
 
     fails_with(DivergenceError("the joint fit diverged"))
-    assert windows.fit_windows(iter(frames), tmp_path, statuses, camera, config, torch.device("cpu")) == []
+    assert windows.fit_windows(iter(frames), tmp_path, results, camera, config, torch.device("cpu")) == []
     assert "frames 0-2 skipped: the joint fit diverged" in capsys.readouterr().err
     for error in (RuntimeError("CUDA out of memory"), RuntimeError("Expected all tensors to be on the same device")):
         fails_with(error)
         with pytest.raises(RuntimeError, match=str(error)):
-            windows.fit_windows(iter(frames), tmp_path, statuses, camera, config, torch.device("cpu"))
+            windows.fit_windows(iter(frames), tmp_path, results, camera, config, torch.device("cpu"))
 
 
 def _devices(*tensors: torch.Tensor) -> set[str]:
@@ -222,7 +161,6 @@ def test_each_window_is_handed_the_frames_it_stands_for(monkeypatch: pytest.Monk
     config = load_config("fast")
     statuses = [FrameStatus(i, "fitted", (0, 0, 4, 4), track=0) for i in range(10)]
     frames = [FrameWithBackground(i, torch.zeros(3, 8, 8), torch.zeros(3, 8, 8)) for i in range(10)]
-    monkeypatch.setattr(windows, "load_result", lambda path: None)
     monkeypatch.setattr(windows, "window_frame", lambda *args: None)
     monkeypatch.setattr(windows, "save_window", lambda *args: None)
     handed: dict[int, list[int]] = {}
@@ -232,7 +170,7 @@ def test_each_window_is_handed_the_frames_it_stands_for(monkeypatch: pytest.Monk
         return type("Saved", (), {"accepted": True})()
 
     monkeypatch.setattr(windows, "fit_track_window", fit)
-    windows.fit_windows(iter(frames), tmp_path, statuses, CAMERA, config, torch.device("cpu"))
+    windows.fit_windows(iter(frames), tmp_path, _results(statuses, config), CAMERA, config, torch.device("cpu"))
     assert handed == {0: [0, 1, 2, 3, 4], 4: [5, 6, 7, 8, 9]}
 
 
@@ -299,7 +237,6 @@ def test_each_window_is_told_which_of_its_frames_touched_another_track(
         for t in (0, 1, 2)
     ]
     frames = [FrameWithBackground(i, torch.zeros(3, 8, 8), torch.zeros(3, 8, 8)) for i in range(5)]
-    monkeypatch.setattr(windows, "load_result", lambda path: None)
     monkeypatch.setattr(windows, "window_frame", lambda *args: None)
     monkeypatch.setattr(windows, "save_window", lambda *args: None)
     monkeypatch.setattr(windows, "object_paths", lambda *args: {})
@@ -310,23 +247,8 @@ def test_each_window_is_told_which_of_its_frames_touched_another_track(
         return type("Saved", (), {"accepted": True})()
 
     monkeypatch.setattr(windows, "fit_track_window", fit)
-    windows.fit_windows(iter(frames), tmp_path, statuses, CAMERA, config, torch.device("cpu"))
+    windows.fit_windows(iter(frames), tmp_path, _results(statuses, config), CAMERA, config, torch.device("cpu"))
     assert told == {0: {3, 4}, 1: {3, 4}, 2: set()}
-
-
-def test_a_dropped_track_gives_its_share_of_a_blob_back() -> None:
-    # falling_three frame 10: a two-frame track, dropped as too short, had taken the lower half
-    # of the pale end's streak; the pale end's windows saw only the upper half.
-    statuses = [
-        FrameStatus(10, "fitted", (323, 38, 28, 54), track=1, touched=True),
-        FrameStatus(10, "dropped", (332, 68, 20, 28), track=2, touched=True),
-        FrameStatus(10, "fitted", (344, 52, 32, 68), track=3),
-        FrameStatus(11, "fitted", (100, 100, 20, 20), track=1, touched=True),
-        FrameStatus(11, "fitted", (110, 115, 20, 20), track=3, touched=True),
-        FrameStatus(11, "fitted", (200, 200, 9, 9), track=4, touched=True),
-    ]
-    # Frame 11: tracks 1 and 3 still share one blob; track 4's part touches neither.
-    assert windows.touched_blobs(statuses)[1] == {(11, 1), (11, 3)}
 
 
 def test_a_window_crops_around_the_share_a_dropped_track_gave_back(
@@ -347,12 +269,12 @@ def test_a_window_crops_around_the_share_a_dropped_track_gave_back(
         given[len(given)] = boxes
         return {}
 
-    monkeypatch.setattr(windows, "load_result", lambda path: type("Result", (), {"track": int(path.stem[-2:])})())
     monkeypatch.setattr(windows, "window_frame", crop)
     monkeypatch.setattr(windows, "save_window", lambda *args: None)
     monkeypatch.setattr(windows, "object_paths", paths)
     monkeypatch.setattr(windows, "fit_track_window", lambda *a, **k: type("Saved", (), {"accepted": True})())
-    windows.fit_windows(iter(frames), tmp_path, statuses, CAMERA, load_config("fast"), torch.device("cpu"))
+    config = load_config("fast")
+    windows.fit_windows(iter(frames), tmp_path, _results(statuses, config), CAMERA, config, torch.device("cpu"))
     # Frame 1: the pale end's crop and its box as a neighbour hold the share given back.
     assert cropped[1, 1] == (323, 48, 29, 80) and given[1][1] == (323, 48, 29, 80)
     assert cropped[0, 1] == (323, 38, 28, 54) and cropped[1, 3] == (400, 50, 20, 40)
@@ -397,7 +319,10 @@ def test_a_window_sees_the_other_objects_of_its_frames_as_the_background(
     monkeypatch.setattr(windows, "window_frame", crop)
     monkeypatch.setattr(windows, "fit_track_window", lambda *args, **kwargs: type("Saved", (), {"accepted": True})())
     monkeypatch.setattr(windows, "save_window", lambda *args: None)
-    windows.fit_windows(iter(frames), tmp_path, statuses, CAMERA, load_config("fast"), torch.device("cpu"))
+    config = load_config("fast")
+    windows.fit_windows(
+        iter(frames), tmp_path, _results(statuses, config, FolderSource(tmp_path)), CAMERA, config, torch.device("cpu")
+    )
     paths = {t: torch.from_numpy(path_mask(s.motion, object_radius(s, CAMERA), CAMERA)) for t, s in states.items()}
     assert set(handed) == {(i, t) for i in range(3) for t in (0, 1)}
     for (_, track), seen in handed.items():
@@ -463,22 +388,3 @@ def test_a_neighbours_blob_past_its_fitted_path_is_background_for_its_window() -
     # Where the streaks touched, the neighbour is only its fitted path.
     touched = windows.others_region(0, {0: own, 1: pale}, apart={0})
     assert not bool(touched[25:, :].any())
-
-
-def test_a_touched_frame_is_cropped_around_the_whole_blob_its_streak_shares() -> None:
-    # The slow-beside scenario's frame 4: two streaks one over the other, one track's part of
-    # their blob a 13 x 10 sliver of a 34 x 22 streak; its window's crop around the sliver cut
-    # the streak off (the track's TIoU 0.725 -> 0.765 with the whole blob, three runs).
-    parts = {
-        (4, 1): (122, 67, 39, 31),
-        (4, 2): (125, 72, 13, 10),
-        (4, 3): (160, 90, 20, 12),  # touches track 1's part (one blob of three)
-        (4, 5): (10, 10, 8, 8),  # another blob of the same frame
-        (4, 6): (19, 14, 8, 8),
-        (5, 1): (100, 60, 30, 20),  # another frame
-        (5, 2): (131, 60, 10, 10),
-    }
-    boxes = shared_boxes(parts)
-    assert boxes[4, 1] == boxes[4, 2] == boxes[4, 3] == (122, 67, 58, 35)
-    assert boxes[4, 5] == boxes[4, 6] == (10, 10, 17, 12)
-    assert boxes[5, 1] == boxes[5, 2] == (100, 60, 41, 20)
