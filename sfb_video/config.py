@@ -394,6 +394,53 @@ class DetectConfig(_Checked):
     """A tracked object's blob is preferred by its colour too: a blob whose chromaticity
     (r, g, b summing to 1) lies this far from the track's counts half as much (0.05 separates
     a yellow ball from skin, about 0.2 away, and from a grey wall's shadow, about 0.08)."""
+    merge_overlap: float = bounded(0.2, gt=0, le=1)
+    """Fragments whose boxes share at least this share of the smaller box are one blob (the two
+    sides of a ring's streak); a shred of an arm beside a ball overlaps it little if at all."""
+    shred_ratio: float = bounded(1.25, ge=1)
+    """A blob whose changed regions (slow movers' pixels kept) hold more than this times its own
+    area is a shred of a larger mover (an arm's fast fringe), not an object of its own."""
+    shade_chroma: float = bounded(0.06, ge=0)
+    """A shade (a shadow, a flicker of the light): a blob whose strongest quarter's chromaticity
+    differs from the background's by at most this (L1)..."""
+    shade_contrast: float = bounded(0.14, gt=0)
+    """... and whose mean difference there (||I - B|| over RGB in [0, 1]) is under this."""
+    shade_penalty: float = bounded(4.0, ge=1)
+    """A shade weighs this many times less as a tracked object than another blob: a grey
+    object's faint streaks are shades too, and still taken where nothing else is."""
+    parallel_deg: float = bounded(30.0, ge=0, le=90)
+    """Two streaks (or paths) whose directions differ by at most this many degrees are parallel."""
+    aligned: float = bounded(0.5, ge=0, le=1)
+    """Parallel cores of a blob whose extents along their axis share at least this much of the
+    shorter are one object (a ring's two sides); less, they are objects side by side."""
+    core_close_px: int = bounded(3, ge=1)
+    """Side of the square that closes a blob's strong pixels before its cores are found (a
+    textured object's strong pixels are patchy)."""
+    core_share: float = bounded(0.25, gt=0, le=1)
+    """A blob's strong core counts from this share of its largest core's area."""
+
+
+@dataclass(frozen=True)
+class TrackConfig(_Checked):
+    """Following each object from frame to frame (the detection section's ``gate`` and
+    ``colour_scale`` choose among the blobs)."""
+
+    SECTION: ClassVar[str] = "track"
+
+    lag_diameters: float = bounded(2.0, ge=0)
+    """A track's 3D guess that lags this many object diameters behind its image pace, along the
+    pace's line, is followed only where no other guess finds a blob."""
+    max_coast: int = bounded(5, ge=0)
+    """Frames a track goes on through while its streak is merged into, or shared with, another's."""
+    colour_memory: float = bounded(0.7, ge=0, le=1)
+    """A track's colour is this share its own and the rest its latest blob's."""
+    other_share: float = bounded(0.1, gt=0, le=1)
+    """A blob no track takes starts a track only from this share of the frame's largest blob."""
+    look_back: int = bounded(2, ge=0)
+    """Frames a newly proven track looks back for its object inside other tracks' blobs."""
+    look_back_share: float = bounded(0.5, gt=0, le=1)
+    """Looking back, a blob is shared out where the track's share of it and the blob's growth
+    over the other track's own are each at least this share of the track's first blob."""
 
 
 @dataclass(frozen=True)
@@ -428,6 +475,7 @@ class Config:
     video: VideoConfig = field(default_factory=VideoConfig)
     joint: JointConfig = field(default_factory=JointConfig)
     detect: DetectConfig = field(default_factory=DetectConfig)
+    track: TrackConfig = field(default_factory=TrackConfig)
     demo: DemoConfig = field(default_factory=DemoConfig)
 
 

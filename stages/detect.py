@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -182,11 +182,12 @@ def detect(
     return choose_blob(index, moving_mask(mask, neighbours, config), prediction, config)
 
 
-def blobs(mask: np.ndarray, merge_px: int, min_area: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+def blobs(mask: np.ndarray, config: DetectConfig) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """The blobs of a (H, W) bool ``mask``: fragments less than ``2 * merge_px`` apart joined
     into one (a streak cut by a fence's wires, or split where it crosses a background of its
-    own colour), then fragments of at least ``min_area`` pixels whose boxes overlap much (the
-    two sides of a ring's streak, a disc seen through a fence).
+    own colour), then fragments of at least ``min_area_px`` pixels whose boxes share
+    ``merge_overlap`` of the smaller (the two sides of a ring's streak, a disc seen through a
+    fence).
 
     Returns:
         as :func:`cv2.connectedComponentsWithStats`: the number of labels (0 is the
@@ -194,20 +195,20 @@ def blobs(mask: np.ndarray, merge_px: int, min_area: int) -> tuple[int, np.ndarr
         of each blob's own pixels, and (count, 2) their centroids.
     """
     grown = mask.astype(np.uint8)
-    if merge_px > 0:
-        grown = cv2.dilate(grown, np.ones((2 * merge_px + 1,) * 2, np.uint8))
+    if config.merge_px > 0:
+        grown = cv2.dilate(grown, np.ones((2 * config.merge_px + 1,) * 2, np.uint8))
     count, labels = cv2.connectedComponents(grown, connectivity=8)
     labels = np.where(mask, labels, 0).astype(np.int32)
     stats, _ = _blob_stats(mask, labels, count)
     parent = np.arange(count)
-    big = [k for k in range(1, count) if stats[k, 4] >= min_area]
+    big = [k for k in range(1, count) if stats[k, 4] >= config.min_area_px]
     changed = True
     while changed:  # boxes grow as they merge: repeat until none overlaps another
         changed = False
         for i, a in enumerate(big):
             for b in big[i + 1 :]:
                 ra, rb = parent[a], parent[b]
-                if ra != rb and _overlap(stats[ra], stats[rb]):
+                if ra != rb and _overlap(stats[ra], stats[rb], config.merge_overlap):
                     parent[parent == rb] = ra
                     stats[ra, :4] = box_union(stats[ra], stats[rb])
                     changed = True
@@ -216,16 +217,11 @@ def blobs(mask: np.ndarray, merge_px: int, min_area: int) -> tuple[int, np.ndarr
     return count, labels, stats, centroids
 
 
-MERGE_OVERLAP = 0.2
-"""Fragments whose boxes share at least this share of the smaller box are one blob."""
-
-
-def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether two (x, y, w, h, ...) boxes share :data:`MERGE_OVERLAP` of the smaller one: the
-    two sides of a ring overlap much; a shred of an arm beside a ball, if at all, little."""
+def _overlap(a: np.ndarray, b: np.ndarray, share: float) -> bool:
+    """Whether two (x, y, w, h, ...) boxes share ``share`` of the smaller one."""
     w = min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0])
     h = min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1])
-    return w > 0 and h > 0 and w * h >= MERGE_OVERLAP * min(a[2] * a[3], b[2] * b[3])
+    return w > 0 and h > 0 and w * h >= share * min(a[2] * a[3], b[2] * b[3])
 
 
 def _blob_stats(mask: np.ndarray, labels: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -293,33 +289,12 @@ def _blob_pixels(image: np.ndarray, where: np.ndarray) -> np.ndarray:
     return pixels / 255.0 if image.dtype == np.uint8 else pixels
 
 
-SHRED_RATIO = 1.25
-"""A blob whose changed regions (slow movers' pixels kept) hold more than this times its own
-area is a shred of a larger mover. circle_fast.avi: the arm's fast fringes 1.4 to 37, the
-ball's streaks clear of the arm 1.00 to 1.10 (up to 5.6 where they pass the arm), the falling
-objects of falling_two and falling_three 1.00 to 1.17 until they reach the floor."""
-
-SHADE_CHROMA = 0.06
-"""The most a shade's chromaticity differs from its background's (:func:`is_shade`)."""
-
-SHADE_CONTRAST = 0.14
-"""A shade: a blob whose strongest quarter's chromaticity differs from the background's by at
-most :data:`SHADE_CHROMA` (L1) and whose mean difference there (||I - B|| over RGB in [0, 1])
-is under :data:`SHADE_CONTRAST`. circle_fast.avi's moving shadows: chromaticity 0.01 to 0.06,
-difference 0.10 to 0.13; its ball 0.07 to 0.29 in chromaticity; the dark objects of
-falling_two and falling_three, as grey as a shadow, differ by 0.15 to 0.50 where they start."""
-
-SHADE_PENALTY = 4.0
-"""A shade weighs this many times less as a tracked object than another blob (:func:`pick_blob`):
-a falling grey object's faint streaks are shades too, and still taken where nothing else is."""
-
-
-def is_shade(quarter: Quarter) -> bool:
+def is_shade(quarter: Quarter, config: DetectConfig) -> bool:
     """Whether a blob (its :func:`strongest_quarter`) is a faint change of brightness alone
-    (:data:`SHADE_CONTRAST`), as a shadow or a flicker of the light makes: no object's own
-    colour shows in it."""
+    (``shade_chroma``, ``shade_contrast``), as a shadow or a flicker of the light makes: no
+    object's own colour shows in it."""
     chroma = float(np.abs(_chromaticity(quarter.own) - _chromaticity(quarter.behind)).sum())
-    return chroma <= SHADE_CHROMA and quarter.difference < SHADE_CONTRAST
+    return chroma <= config.shade_chroma and quarter.difference < config.shade_contrast
 
 
 @timed("detect")
@@ -350,6 +325,7 @@ class FrameBlobs:
             not taken out, for :meth:`own_object`.
         joined: (count,) for each label, the label of the blob it was split from
             (:func:`side_by_side`), its own where it was not.
+        config: the detection section: what makes a blob a shred or a shade.
     """
 
     count: int
@@ -359,6 +335,7 @@ class FrameBlobs:
     pixels: tuple[np.ndarray, np.ndarray] | None = None
     changed: np.ndarray | None = None
     joined: np.ndarray | None = None
+    config: DetectConfig = field(default_factory=DetectConfig)
 
     def __post_init__(self) -> None:
         self._quarters: dict[int, Quarter] = {}
@@ -367,7 +344,7 @@ class FrameBlobs:
     def own_object(self, label: int) -> bool:
         """Whether blob ``label`` may be an object of its own beside another tracked one: not a
         shred of a larger mover (the changed regions it lies in, slow movers' pixels
-        included, hold at most :data:`SHRED_RATIO` times its area: an arm whose fringe moved
+        included, hold at most ``shred_ratio`` times its area: an arm whose fringe moved
         fast) and not a shade (a faint change of brightness alone: the shadow a ball casts on
         the wall). The first needs the frame's ``changed`` mask, the second its pixels; without
         them, a blob passes that test."""
@@ -381,14 +358,14 @@ class FrameBlobs:
             # Objects side by side, split from one blob, share their changed region.
             siblings = [label] if self.joined is None else np.flatnonzero(self.joined == self.joined[label]).tolist()
             own = sum(self.area(k) for k in siblings if k == label or np.isin(regions[self.labels == k], touched).any())
-            if float(areas[touched].sum()) > SHRED_RATIO * own:
+            if float(areas[touched].sum()) > self.config.shred_ratio * own:
                 return False
         return not self.shade(label)
 
     def shade(self, label: int) -> bool:
         """Whether blob ``label`` is a shade (:func:`is_shade`); False without the frame."""
         quarter = self._quarter(label)
-        return quarter is not None and is_shade(quarter)
+        return quarter is not None and is_shade(quarter, self.config)
 
     def colour(self, label: int) -> tuple[float, float, float] | None:
         """The chromaticity of blob ``label`` (:func:`blob_colour`), None without the frame."""
@@ -469,26 +446,6 @@ def share_out(
     return parts
 
 
-PARALLEL_DEG = 30.0
-"""Two strong cores whose axes differ by at most this many degrees are parallel (:func:`apart`).
-falling_three.mp4's objects side by side, frames 9-11: 1 to 16 degrees; a textured box's
-streak beside a ball's (``benchmarks.multi_object``): up to 22."""
-
-ALIGNED = 0.5
-"""Two parallel cores side by side whose extents along their axis share at least this share of
-the shorter one are one object's (the two sides of a ring's streak: 0.67 and 1.0 in the
-synthetic ring); less, two objects falling beside each other, one a little ahead (falling_three,
-frames 10 and 11: 0.2 to 0.4)."""
-
-CORE_CLOSE_PX = 3
-"""A blob's strong pixels are closed by a square of this side before they are split into cores:
-a textured object's come in pieces a pixel apart. 5 joined two objects' cores in
-``benchmarks.multi_object``'s touching scenario, and a ring's streak cut by a pole came apart."""
-
-CORE_SHARE = 0.25
-"""A strong core counts in :func:`side_by_side` from this share of the blob's largest core's area."""
-
-
 @dataclass(frozen=True)
 class Core:
     """A connected run of a blob's strong pixels (above ``detect.threshold``).
@@ -516,19 +473,19 @@ class Core:
         return float(along.min()), float(along.max())
 
 
-def parallel(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether two (2,) unit directions in the image differ by at most :data:`PARALLEL_DEG`
+def parallel(a: np.ndarray, b: np.ndarray, max_deg: float) -> bool:
+    """Whether two (2,) unit directions in the image differ by at most ``max_deg`` degrees
     (either way along a line)."""
-    return math.degrees(math.acos(min(1.0, abs(float(a @ b))))) <= PARALLEL_DEG
+    return math.degrees(math.acos(min(1.0, abs(float(a @ b))))) <= max_deg
 
 
-def apart(a: Core, b: Core) -> bool:
+def apart(a: Core, b: Core, config: DetectConfig) -> bool:
     """Whether two strong cores of one blob are two objects' streaks: parallel
-    (:data:`PARALLEL_DEG`), beside each other (their centres more than half their mean width apart
+    (``parallel_deg``), beside each other (their centres more than half their mean width apart
     across the longer one's axis: not a streak cut in a row by a fence's wire) and one ahead of the
-    other (their extents along it share less than :data:`ALIGNED` of the shorter: not a ring's two
+    other (their extents along it share less than ``aligned`` of the shorter: not a ring's two
     sides)."""
-    if not parallel(a.axis, b.axis):
+    if not parallel(a.axis, b.axis, config.parallel_deg):
         return False
     ea, eb = a.extent(a.axis, a.centre), b.extent(a.axis, a.centre)
     longer = a if ea[1] - ea[0] >= eb[1] - eb[0] else b
@@ -538,32 +495,36 @@ def apart(a: Core, b: Core) -> bool:
         return False
     ea, eb = a.extent(longer.axis, a.centre), b.extent(longer.axis, a.centre)
     shared = min(ea[1], eb[1]) - max(ea[0], eb[0])
-    return shared < ALIGNED * min(ea[1] - ea[0], eb[1] - eb[0])
+    return shared < config.aligned * min(ea[1] - ea[0], eb[1] - eb[0])
 
 
-def side_by_side(blob: np.ndarray, difference: np.ndarray, threshold: float, min_area: int) -> list[np.ndarray] | None:
+def side_by_side(blob: np.ndarray, difference: np.ndarray, config: DetectConfig) -> list[np.ndarray] | None:
     """A (h, w) bool ``blob`` whose strong cores (its (h, w) :func:`difference_image` above
-    ``threshold``) are the streaks of objects falling beside each other shared out among them:
-    (h, w) bool parts, or None where the blob is one object's (or a part would be smaller than
-    ``min_area``).
+    ``threshold``, closed by ``core_close_px``) are the streaks of objects falling beside each
+    other shared out among them: (h, w) bool parts, or None where the blob is one object's (or a
+    part would be smaller than ``min_area_px``).
 
     Cores that are not apart (:func:`apart`) are one object's, and so are the cores not apart from
     those, in a chain: a curved streak's pieces, each at an angle to the next, stay one object
-    (circle_fast.avi's swinging ball). Only cores of at least :data:`CORE_SHARE` of the largest
+    (circle_fast.avi's swinging ball). Only cores of at least ``core_share`` of the largest
     count; their pixels go to their objects, every other pixel of the blob to the object whose
     largest core's axis lies nearest. The hysteresis joins such streaks by their faint fringes:
     falling_three.mp4's three objects, 7 to 12 px apart, in frames 9-11."""
-    strong = (blob & (difference > threshold)).astype(np.uint8)
-    strong = cv2.morphologyEx(strong, cv2.MORPH_CLOSE, np.ones((CORE_CLOSE_PX,) * 2, np.uint8)) & blob
+    min_area = config.min_area_px
+    strong = (blob & (difference > config.threshold)).astype(np.uint8)
+    close = np.ones((config.core_close_px,) * 2, np.uint8)
+    strong = cv2.morphologyEx(strong, cv2.MORPH_CLOSE, close) & blob
     count, cores = cv2.connectedComponents(strong.astype(np.uint8), connectivity=8)
     sizes = np.bincount(cores.ravel(), minlength=count)
     sizes[0] = 0
     # Three pixels at least: a core's axis is the spread of its pixels.
-    big = [k for k in np.argsort(-sizes, kind="stable") if sizes[k] >= max(min_area, 3, CORE_SHARE * sizes.max())]
+    big = [
+        k for k in np.argsort(-sizes, kind="stable") if sizes[k] >= max(min_area, 3, config.core_share * sizes.max())
+    ]
     found = [Core.of(cores == k) for k in big]
     group = list(range(len(found)))  # cores not apart are one object's, and so on in a chain
     for i, j in itertools.combinations(range(len(found)), 2):
-        if group[i] != group[j] and not apart(found[i], found[j]):
+        if group[i] != group[j] and not apart(found[i], found[j], config):
             group = [group[i] if g == group[j] else g for g in group]
     # Each object's largest core (``big`` runs largest first), and all its cores.
     members = {g: [int(big[k]) for k in range(len(found)) if group[k] == g] for g in dict.fromkeys(group)}
@@ -601,7 +562,7 @@ def _split_side_by_side(
             continue
         window = (slice(y, y + h), slice(x, x + w))
         difference = difference_image(*(f[(slice(None), *window)] for f in frame))
-        parts = side_by_side(labels[window] == label, difference, config.threshold, config.min_area_px)
+        parts = side_by_side(labels[window] == label, difference, config)
         for part in (parts or [])[1:]:
             labels[window][part] = len(joined)
             joined.append(label)
@@ -619,7 +580,7 @@ def frame_blobs(
     side by side (:func:`side_by_side`), and its ``changed`` (H, W) difference mask, for
     :meth:`FrameBlobs.own_object`."""
     mask = moving.cpu().numpy().astype(bool)
-    count, labels, stats, centroids = blobs(mask, config.merge_px, config.min_area_px)
+    count, labels, stats, centroids = blobs(mask, config)
     pixels = None if frame is None else (frame[0].cpu().numpy(), frame[1].cpu().numpy())
     joined = None
     if frame is not None:
@@ -627,7 +588,7 @@ def frame_blobs(
         count = len(joined)
         stats, centroids = _blob_stats(mask, labels, count)
     whole = None if changed is None else changed.cpu().numpy().astype(bool)
-    return FrameBlobs(count, labels, stats, centroids, pixels, whole, joined)
+    return FrameBlobs(count, labels, stats, centroids, pixels, whole, joined, config)
 
 
 def pick_blob(
@@ -639,7 +600,7 @@ def pick_blob(
 
     Without a ``prediction`` the largest blob; with one, the blobs within its gate
     (:func:`gate_distance`) weighed by area, nearness and the track's colour, a shade
-    (:func:`is_shade`) :data:`SHADE_PENALTY` times less.
+    (:func:`is_shade`) ``shade_penalty`` times less.
     """
     best: tuple[float, int] | None = None
     candidates: list[int] = []
@@ -667,7 +628,7 @@ def pick_blob(
             if found.shade(label):
                 # circle_fast.avi: the ball's shadow on the wall lay nearer a poor prediction
                 # than the ball, and as near the track's colour, which the arm had tinted.
-                score /= SHADE_PENALTY
+                score /= config.shade_penalty
         candidates.append(label)
         if best is None or score > best[0]:
             best = (score, label)

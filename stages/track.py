@@ -355,26 +355,21 @@ def follow_box(
     return detection, None if best is None else best[1]
 
 
-LAG_DIAMETERS = 2.0
-"""Object diameters by which a track's 3D guess must fall short of its image-pace guess for the
-pace to be followed first (:func:`lags`)."""
-
-
-def lags(three_d: Prediction, paced: Prediction, last: tuple[float, float]) -> bool:
+def lags(three_d: Prediction, paced: Prediction, last: tuple[float, float], config: Config) -> bool:
     """Whether the 3D guess falls short of the image-pace guess along the pace's line: more than
-    :data:`LAG_DIAMETERS` of the object's diameters from it, and either hardly on from the
+    ``track.lag_diameters`` of the object's diameters from it, and either hardly on from the
     ``last`` streak's centre (under one diameter), or on from it the pace's way, less far, and
-    within :data:`~sfb_video.stages.detect.PARALLEL_DEG` of its line (a ball swung on a circle:
-    there the 3D guess turns as the object turned, and the pace does not)."""
+    parallel to its line (``detect.parallel_deg``: a ball swung on a circle, where the 3D guess
+    turns as the object turned, and the pace does not)."""
     gap = math.hypot(three_d.centre[0] - paced.centre[0], three_d.centre[1] - paced.centre[1])
-    if gap <= LAG_DIAMETERS * max(paced.diameter, 1.0):
+    if gap <= config.track.lag_diameters * max(paced.diameter, 1.0):
         return False
     step = np.subtract(three_d.centre, last)
     pace = np.subtract(paced.centre, last)
     if np.linalg.norm(step) < max(paced.diameter, 1.0):
         return True  # hardly on from the last streak: its direction says nothing
     on = float(step @ pace) > 0 and np.linalg.norm(step) < np.linalg.norm(pace)
-    return on and parallel(step / np.linalg.norm(step), pace / np.linalg.norm(pace))
+    return on and parallel(step / np.linalg.norm(step), pace / np.linalg.norm(pace), config.detect.parallel_deg)
 
 
 def _at_edge(box: Box, camera: PinholeCamera) -> bool:
@@ -383,23 +378,14 @@ def _at_edge(box: Box, camera: PinholeCamera) -> bool:
     return x <= 0 or y <= 0 or x + w >= camera.width or y + h >= camera.height
 
 
-MAX_COAST = 5
-"""Frames a track goes on through without a clean fit of its own: its streak merged into another
-track's blob, or shared out with it (two objects crossing). Three objects touching in turn share
-four frames in a row (``benchmarks.multi_object``'s slow-beside scenario). A track of one frame,
-its direction unknown, does not coast where its blob merged: it ends (it may still share)."""
-
-COLOUR_MEMORY = 0.7
-"""A track's colour is this much its past frames' and the rest its newest blob's: one frame whose
-blob took in a piece of the arm holding the ball does not make the track look for skin."""
-
-
 def _blend(
-    track: tuple[float, float, float] | None, blob: tuple[float, float, float] | None
+    track: tuple[float, float, float] | None, blob: tuple[float, float, float] | None, memory: float
 ) -> tuple[float, float, float] | None:
+    """A track's colour: ``memory`` its own, the rest its newest blob's (one blob that took in a
+    piece of the arm holding the ball does not make the track look for skin)."""
     if track is None or blob is None:
         return blob
-    r, g, b = (COLOUR_MEMORY * t + (1 - COLOUR_MEMORY) * c for t, c in zip(track, blob, strict=True))
+    r, g, b = (memory * t + (1 - memory) * c for t, c in zip(track, blob, strict=True))
     return r, g, b
 
 
@@ -419,7 +405,7 @@ class Tracker:
     motion continued across the gap (turning as it turned), predicts it (:func:`follow`, or
     :func:`follow_box` for a given box); the frames then join end to start (:func:`join`),
     which fixes the time direction of a track's first frame. A frame that is not the next one,
-    or has no object, ends the track, but for up to :data:`MAX_COAST` frames in which the
+    or has no object, ends the track, but for up to ``track.max_coast`` frames in which the
     object's streak merged with another track's (:meth:`coast`) or was shared out with it.
 
     Attributes:
@@ -472,7 +458,7 @@ class Tracker:
             # nearer (falling_two: the 3D guess lagged one object by 88 px, and took the other).
             glided = self._glided(index)
             last = predict(self.previous.state.motion, self.camera).centre
-            if self._clean_pace() and lags(predicted[0][0], glided, last):
+            if self._clean_pace() and lags(predicted[0][0], glided, last, self.config):
                 # The two guesses part: the image pace from two whole streaks is the surer, and
                 # the lagging 3D guess would land on whatever lies behind (falling_three frame
                 # 13: the grey object's lagged onto the red end's streak and took it). It is
@@ -502,9 +488,9 @@ class Tracker:
     def coast(self) -> None:
         """Keep the track through this frame, where its object's streak merged into another
         track's blob: the next frame is predicted from the track's last clean one, for at most
-        :data:`MAX_COAST` frames of streaks merged or shared."""
+        ``track.max_coast`` frames of streaks merged or shared."""
         self.coasting += 1
-        if self.coasting > MAX_COAST:
+        if self.coasting > self.config.track.max_coast:
             self.lose()
 
     def found(self, followed: FrameResult | None) -> FrameResult | None:
@@ -547,18 +533,13 @@ class Tracker:
         if shared and self.previous is not None:
             self.coast()
             return self.number, result, reversed_previous
-        self.colour = _blend(self.colour if self.length else None, colour)
+        self.colour = _blend(self.colour if self.length else None, colour, self.config.track.colour_memory)
         self.earlier, self.previous, self.length, self.coasting = self.previous, result, self.length + 1, 0
         return self.number, result, reversed_previous
 
     def lose(self) -> None:
         """End the track: the next object found starts a new one."""
         self.previous, self.length, self.coasting = None, 0, 0
-
-
-OTHER_SHARE = 0.1
-"""A blob that no track follows starts a new one when it is at least this share of the frame's
-largest blob: another fast mover, not a speck of noise or a shred of a slow one."""
 
 
 def _new_objects(found: FrameBlobs, taken: set[int], config: Config, alone: bool) -> list[int]:
@@ -569,7 +550,7 @@ def _new_objects(found: FrameBlobs, taken: set[int], config: Config, alone: bool
     with every mover tracked, circle_fast.avi's arm and the ball's shadow on the wall started
     twelve tracks beside the ball's, which took the ball's blob from it in turn."""
     areas = [found.area(k) for k in range(1, found.count)]
-    floor = max(config.detect.min_area_px, OTHER_SHARE * max(areas, default=0.0))
+    floor = max(config.detect.min_area_px, config.track.other_share * max(areas, default=0.0))
     fresh = [k for k in range(1, found.count) if k not in taken and found.area(k) >= floor]
     fresh.sort(key=lambda k: (-found.area(k), k))
     return [k for n, k in enumerate(fresh) if (alone and n == 0) or found.own_object(k)]
@@ -592,7 +573,7 @@ def track_and_fit(
     taken, in :func:`_choosing_order` (longest first, but of those that would take one blob the
     one whose taking it lands them all nearest, a track of one frame after longer ones); one
     whose blob was taken goes to a blob left (:func:`_goes_elsewhere`) or shares it; the blobs left that
-    are objects of their own (:data:`OTHER_SHARE`,
+    are objects of their own (``track.other_share``,
     :meth:`~sfb_video.stages.detect.FrameBlobs.own_object`) start new tracks, largest first;
     the other pieces left of a track's streak, split off as objects beside it, go back to it
     (:func:`_on_its_streak`).
@@ -606,7 +587,7 @@ def track_and_fit(
     """
     saved = saved_frames(folder)
     statuses: list[FrameStatus] = []
-    held: deque[list[_Held]] = deque(maxlen=LOOK_BACK + _proven(config) + 1)
+    held: deque[list[_Held]] = deque(maxlen=config.track.look_back + _proven(config) + 1)
     numbers = TrackNumbers()
     live: list[Tracker] = []
     limit = config.video.max_objects or math.inf
@@ -804,17 +785,6 @@ def _shared(
     return _Claim(tracker, label, 0, prediction, parts[-1], [c.tracker for c in first])
 
 
-LOOK_BACK = 2
-"""Frames before a new track's first in which it looks for its object inside a blob that other
-tracks took (:func:`_look_back`): the slow-beside scenario's pen (``benchmarks.multi_object``)
-starts inside the second object's blob and comes out of it two frames later."""
-
-LOOK_BACK_SHARE = 0.5
-"""Looking back, a track's share of another track's blob, and how much that blob is larger than
-the other's blob of the next frame, must each be at least this share of its own first blob's
-area: the object is there, not the other's fringe nearest its path."""
-
-
 @dataclass
 class _HeldFit:
     """One track's fit of a blob of a recent frame: its track, the prediction that found it, its
@@ -913,10 +883,10 @@ def _look_back(
     masks: MaskSource | None,
 ) -> list[FrameStatus]:
     """A track just fitted in enough frames to be kept (:func:`_proven`) looks back for its object
-    in the :data:`LOOK_BACK` frames before its first, inside blobs that other tracks, still going,
+    in the ``track.look_back`` frames before its first, inside blobs that other tracks, still going,
     took whole (its object had no track yet to share them with): where its streak, moved back at
     its pace in the image, takes enough of such a blob, and the blob is larger by as much than its
-    tracks' own of the next frame (:data:`LOOK_BACK_SHARE`), the blob is shared out, each track's
+    tracks' own of the next frame (``track.look_back_share``), the blob is shared out, each track's
     part refitted (its first fit kept apart, :func:`followed_path`, for a
     resumed run to follow the tracks as this one did), and the track's fit there joins it
     (warm from its next frame, the time run backwards).
@@ -933,7 +903,7 @@ def _look_back(
     first = _followed(folder, (mine[0][0], tracker.number))
     own_area = mine[0][1]
     later, restated = first, []
-    for index in range(first.index - 1, first.index - 1 - LOOK_BACK, -1):
+    for index in range(first.index - 1, first.index - 1 - config.track.look_back, -1):
         prediction = glide(first, last, index, camera)
         best: tuple[float, _Held, list[np.ndarray]] | None = None
         for blob in by_index.get(index, []):
@@ -949,7 +919,7 @@ def _look_back(
             # The blob is larger than its tracks' own blobs of the next frame by about this
             # object: not one object's blob that another track's path happens to pass.
             grown = float(blob.blob.sum()) - _areas_after(blob, by_index.get(index + 1, []))
-            enough = LOOK_BACK_SHARE * own_area
+            enough = config.track.look_back_share * own_area
             if parts is not None and min(share, grown) >= enough and (best is None or share > best[0]):
                 best = (share, blob, parts)
         if best is None:

@@ -75,10 +75,12 @@ class ObjectPath:
     direction: np.ndarray | None
     box: torch.Tensor
 
-    def beside(self, other: ObjectPath) -> bool:
-        """Whether ``other`` runs beside this path (:func:`~sfb_video.stages.detect.parallel`,
-        not across it) and within it: at least half its centre's path inside this one's ``mask``."""
-        if self.direction is None or other.direction is None or not parallel(self.direction, other.direction):
+    def beside(self, other: ObjectPath, parallel_deg: float) -> bool:
+        """Whether ``other`` runs beside this path (within ``parallel_deg`` of it, not across it)
+        and within it: at least half its centre's path inside this one's ``mask``."""
+        if self.direction is None or other.direction is None:
+            return False
+        if not parallel(self.direction, other.direction, parallel_deg):
             return False
         centre = other.distance < 0.5
         on_frame = int(centre.sum())  # none: its centre's path lies off the frame
@@ -106,7 +108,9 @@ def object_paths(
     return paths
 
 
-def others_region(track: int, paths: dict[int, ObjectPath], apart: Collection[int] = ()) -> torch.Tensor:
+def others_region(
+    track: int, paths: dict[int, ObjectPath], parallel_deg: float, apart: Collection[int] = ()
+) -> torch.Tensor:
     """(H, W) bool where the other tracks of a frame put their objects (their ``paths``,
     :func:`object_paths`): what a window of ``track`` should not try to explain
     (:meth:`~sfb_video.stages.types.FrameWithBackground.without`). ``apart``: the tracks whose
@@ -133,7 +137,7 @@ def others_region(track: int, paths: dict[int, ObjectPath], apart: Collection[in
         kept = own.mask
         if track in apart and t in apart:
             kept = kept & own.box
-            if own.beside(other):
+            if own.beside(other, parallel_deg):
                 kept = kept & (own.distance <= other.distance)
             region |= other.box & ~own.box
         region |= other.mask & ~kept
@@ -258,7 +262,7 @@ def fit_windows(
             box = boxes[key.track]
             assert box is not None  # a fitted object has its detection
             # Several objects in the frame: the others show the background.
-            seen = frame.without(others_region(key.track, paths, apart)) if paths else frame
+            seen = frame.without(others_region(key.track, paths, config.detect.parallel_deg, apart)) if paths else frame
             crops[key] = window_frame(seen, box, singles[key.track], camera, config, device)
         ready = [w for w in pending if all(FrameKey(i, w.track) in crops for i in w.frames)]
         for window in ready:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -180,6 +182,11 @@ def test_a_shred_of_a_larger_mover_or_a_shade_is_no_object_of_its_own() -> None:
     own = {tuple(int(v) for v in alone.stats[k, :4]): alone.own_object(k) for k in range(1, alone.count)}
     assert own == {ball: True, fringe: True, shadow: False, dark: True}
     assert all(frame_blobs(moving, CONFIG).own_object(k) for k in range(1, found.count))
+    # The rules are the config's: a larger shred ratio keeps the fringe, a dimmer shade bar the shadow.
+    lenient = dataclasses.replace(CONFIG, shred_ratio=40.0, shade_contrast=0.05)
+    found = frame_blobs(moving, lenient, (image, background), changed)
+    own = {tuple(int(v) for v in found.stats[k, :4]): found.own_object(k) for k in range(1, found.count)}
+    assert own == {ball: True, fringe: True, shadow: True, dark: True}
     # A frame of an 8-bit clip over a float background (a given image, or the whole clip's
     # median), and both float: each is read by its own type.
     for pair in ((image, background.float() / 255), (image.float() / 255, background.float() / 255)):
@@ -200,6 +207,8 @@ def test_a_tracked_object_is_not_taken_for_a_nearer_shadow_but_a_shade_alone_is_
     mask = _mask(ball, shadow, size=(60, 120))
     assert choose_blob(0, mask, prediction, CONFIG).box == shadow  # without the frame's pixels
     assert choose_blob(0, mask, prediction, CONFIG, (image, background)).box == ball
+    unpenalised = dataclasses.replace(CONFIG, shade_penalty=1.0)
+    assert choose_blob(0, mask, prediction, unpenalised, (image, background)).box == shadow
     alone = choose_blob(0, _mask(shadow, size=(60, 120)), prediction, CONFIG, (image, background))
     assert alone is not None and alone.box == shadow
 

@@ -476,3 +476,14 @@ def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(
         assert _look_back(late, frames, tmp_path, set(), CAMERA, config, CPU, None) == []
         assert fitted == looked  # refitted (and given up) only where the blob grew by the object
     assert late.length == 3 and not (tmp_path / "frames" / "followed").exists()
+
+
+def test_a_track_coasts_for_its_config_s_frames_then_ends() -> None:
+    for max_coast in (0, 2, 5):
+        tracker = Tracker(CAMERA, load_config("default", [f"track.max_coast={max_coast}"]))
+        tracker.length = 3
+        for _ in range(max_coast):
+            tracker.coast()
+        assert tracker.length == 3, max_coast
+        tracker.coast()
+        assert tracker.length == 0, max_coast

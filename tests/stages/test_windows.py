@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from sfb_video.config import Config, JointConfig, load_config
+from sfb_video.config import Config, DetectConfig, JointConfig, load_config
 from sfb_video.errors import DivergenceError
 from sfb_video.fitting.path import Seed, choose_motion
 from sfb_video.geometry.camera import PinholeCamera
@@ -26,6 +26,7 @@ from sfb_video.stages.types import FrameStatus, FrameWithBackground
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
 E = 0.6
+PARALLEL = DetectConfig().parallel_deg
 
 
 class _Saved:
@@ -354,13 +355,13 @@ def test_a_neighbour_beside_a_wide_path_is_background_for_its_window() -> None:
     paths = windows.object_paths(results, CAMERA)  # type: ignore[arg-type]
     neighbour = paths[1].mask
     assert bool((neighbour & paths[0].mask).float().mean() > 0.5 * neighbour.float().mean())  # inside the wide path
-    hidden = windows.others_region(0, paths, apart={0, 1})
+    hidden = windows.others_region(0, paths, PARALLEL, apart={0, 1})
     assert bool(hidden[paths[1].distance < 2].all())  # the neighbour's centre
     assert not bool(hidden[paths[0].distance < 10].any())  # this object's own streak
-    assert not bool(windows.others_region(1, paths, apart={0, 1})[paths[1].distance < 5].any())
+    assert not bool(windows.others_region(1, paths, PARALLEL, apart={0, 1})[paths[1].distance < 5].any())
     # Streaks that touched (objects crossing, whose fitted paths may look level): the overlap
     # stays this object's.
-    assert not bool((windows.others_region(0, paths, apart={1}) & paths[0].mask).any())
+    assert not bool((windows.others_region(0, paths, PARALLEL, apart={1}) & paths[0].mask).any())
 
 
 def _path(box: tuple[int, int, int, int], covered: tuple[int, int, int, int]) -> windows.ObjectPath:
@@ -382,9 +383,9 @@ def test_a_neighbours_blob_past_its_fitted_path_is_background_for_its_window() -
     # lower half lay in the grey object's window's crop, and its fit grew a white side there.
     own = _path((20, 0, 10, 40), (18, 0, 14, 40))  # the fitted path a little wider than the blob
     pale = _path((8, 0, 14, 40), (8, 0, 14, 20))  # its fit covers the upper half only
-    hidden = windows.others_region(0, {0: own, 1: pale}, apart={0, 1})
+    hidden = windows.others_region(0, {0: own, 1: pale}, PARALLEL, apart={0, 1})
     assert bool(hidden[25:, 8:20].all())  # the neighbour's lower half, outside this blob's box
     assert not bool(hidden[:, 20:30].any())  # this object's blob, its box
     # Where the streaks touched, the neighbour is only its fitted path.
-    touched = windows.others_region(0, {0: own, 1: pale}, apart={0})
+    touched = windows.others_region(0, {0: own, 1: pale}, PARALLEL, apart={0})
     assert not bool(touched[25:, :].any())
