@@ -1,92 +1,17 @@
-"""A rerun recording (``recording.rrd``) of a processed clip, to replay the run in the rerun viewer.
-
-Open it with ``rerun recording.rrd``. The file is streamed to disk while the clip is processed:
-memory holds no images, only rerun's small per-chunk index (see ``WRITE_FOOTER``). It appears
-under its final name only when the recorder is closed; until then it is a hidden temporary file
-in the same folder (:func:`sfb_video.atomic.temporary_sibling`), removed if the run fails.
-
-rerun encodes the file (its own file sink, footer included) but does not write it to disk: it
-writes into a pipe, and a thread of ours copies the pipe into the temporary file with plain
-writes (:class:`_Pipe`). rerun's own file writer stops at a write error (a full disk) and says so
-only in its log, after which its flush times out and its disconnect waits forever; through the
-pipe, which is always drained, rerun's writer never fails, and a write error is an ``OSError`` of
-ours, reported as a one-line :class:`~sfb_video.errors.OutputError` at the next frame or on close.
-
-Entity layout (what each path holds):
-
-    world                          static ViewCoordinates RDF: world = the camera frame (OpenCV,
-                                   x right, y down, z forward), so the 3D view matches the image.
-    world/camera                   static Pinhole: the clip's intrinsics and resolution, camera at
-                                   the world origin.
-    world/camera/image             the input frame (JPEG), shown in the pinhole's 2D view and on
-                                   its frustum in 3D; static AnnotationContext for the mask.
-    world/camera/image/detection   Boxes2D: the detected objects' boxes, labelled by track; Clear on
-                                   frames without one.
-    world/camera/image/mask        SegmentationImage: the detection mask (class 1 = "object",
-                                   uncompressed); Clear on frames without one.
-    world/camera/image/subframe_mask  SegmentationImage, subframe timeline only: the sub-frame mask
-                                   (DeFMO's; class 2 = "sub-frame mask") each fit used, in the
-                                   fit's time order; only in runs with such masks.
-    run/masks, run/config, run/summary, run/shapes  static TextDocuments: the masks the fits used,
-                                   per track and frames ("diff", or "defmo" and whether DeFMO's
-                                   order was kept or reversed); the run's resolved config; its
-                                   summary.json; the shape each joint window chose and its margin.
-    world/track_XX/object          Mesh3D: track XX's fitted textured mesh in object coordinates
-                                   (unit scale), and Transform3D (translation + mat3x3): its pose,
-                                   object -> camera coordinates.
-    world/trajectory/track_XX      LineStrips3D + Points3D: track XX's 3D positions so far.
-    background                     the estimated background (JPEG).
-    reconstruction                 I_hat, the fitted object blurred over the background (JPEG).
-    tsr                            the temporal super-resolution sub-frames (JPEG), one per
-                                   sub-frame time step.
-    losses/track_XX/<name>         Scalars: the final value of each loss of a frame's fit.
-    fit/track_XX/<name>            Scalars, step timeline only: each loss along the optimisation
-                                   of each of the track's fits, one after another.
-    quality/track_XX/explained     Scalars: how much of the frame's difference the fit explains.
-
-The layout the viewer opens on (:func:`layout`, sent with the recording as its blueprint): the
-input frame with its detection beside the super-resolved sub-frame, the 3D view framed on the
-objects' trajectories, and tabs: one per track (its losses and explained), the fits' curves on
-the step timeline, the reconstruction and background, the run's text. It opens on the subframe
-timeline, where every panel it shows has content.
-
-Timelines (all sequences):
-
-    frame      the frame index. Everything but ``tsr``, ``fit`` and the sub-frame poses is on it;
-               at a frame the object's transform is its pose at mid-exposure.
-    subframe   ``frame * n + k`` for sub-frame k of the n each frame has (``subframes``): scrub it
-               to play the sub-frames. ``tsr`` and the pose at each sub-frame's mid-time live
-               here, not on ``frame`` (so they cannot shadow the frame-level pose); everything
-               else logged per frame is also stamped at ``frame * n`` so that it shows while
-               scrubbing.
-    step       the optimisation steps of ``fit/track_XX/<name>``, counted on across the track's
-               fits (a frame's fit starts where the previous one ended), so that they read as
-               one curve after another, not as a pile of curves that all start at 0.
-
-Reading it back in Python: ``rerun.chunk.RrdReader(path).stream().to_chunks()`` gives chunks with
-``entity_path`` (with a leading "/"), ``is_static``, ``timeline_names`` and ``to_record_batch()``,
-whose columns are the timelines and components named "<Archetype>:<field>" (e.g.
-"Transform3D:translation"); matrices are stored column-major.
-
-Pixel convention: the project puts pixel centres at integers, rerun at half-integers (pixel (0, 0)
-covers [0, 1] x [0, 1]), so the pinhole's principal point is (cx + 0.5, cy + 0.5) and a box of
-pixels (x, y, w, h) spans [x, x + w] x [y, y + h].
-"""
+"""The recorder: everything a run logs, on rerun's timelines, into ``recording.rrd``
+(the entity layout is :mod:`sfb_video.recording`'s)."""
 
 from __future__ import annotations
 
 import contextlib
 import json
 import os
-import tempfile
-import threading
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
-import rerun.blueprint as rrb
 import torch
 import yaml
 
@@ -97,28 +22,24 @@ from sfb_video.imageio import to_uint8
 from sfb_video.mesh_files import to_trimesh
 from sfb_video.model.formation import exposure_times
 from sfb_video.model.scene import ObjectState
+from sfb_video.recording.layout import APPLICATION_ID, FRAME, STEP, SUBFRAME, layout, shape_text, spans, track_entity
+from sfb_video.recording.pipe import Pipe
 from sfb_video.timing import timed
 
-APPLICATION_ID = "sfb-video"
-FRAME, SUBFRAME, STEP = "frame", "subframe", "step"
 JPEG_QUALITY = 90
 # The footer is an index of every chunk, written on close: it keeps LazyStore and random access
 # working, at the cost of a few KB of memory per chunk until then (about 30 KB per frame
 # measured). Everything else streams to disk; False makes memory flat but rerun then warns on
 # stderr and readers treat the file as the legacy format.
 WRITE_FOOTER = True
-# rerun's writer only waits on our copy thread (:class:`_Pipe`), which never stops reading; the
-# limit is for a disk that stops answering (a healthy one takes a frame in milliseconds).
+# rerun's writer only waits on our copy thread (:class:`~sfb_video.recording.pipe.Pipe`), which
+# never stops reading; the limit is for a disk that stops answering (a healthy one takes a frame in milliseconds).
 FLUSH_TIMEOUT_S = 120.0
-# How much of the pipe the copy thread takes at a time.
-PIPE_READ_SIZE = 1 << 20
 MASK_CLASS = 1
 SUBFRAME_MASK_CLASS = 2
 # In object sizes (the unit of the 3D scene), so they scale with the object.
 TRAJECTORY_LINE_RADIUS = 0.02
 TRAJECTORY_POINT_RADIUS = 0.05
-EYE_MIN_DISTANCE = 6.0
-"""The 3D view's eye stands at least this far from the trajectories' middle, in object sizes."""
 
 Box = tuple[int, int, int, int]
 
@@ -157,7 +78,7 @@ class Recorder(AtomicOutput):
         self._steps: dict[int, int] = {}  # track -> the steps of its fits logged so far
         self._paths: dict[int, np.ndarray] = {}  # track -> its trajectory, as last logged
         self._tmp: Path | None = temporary_sibling(self.path, ".rrd")
-        self._pipe: _Pipe | None = None
+        self._pipe: Pipe | None = None
         if recording_id is None:
             recording_id = str(uuid.uuid5(uuid.NAMESPACE_URL, f"{APPLICATION_ID}:{name}"))
         self._rec = rr.RecordingStream(application_id=APPLICATION_ID, recording_id=recording_id)
@@ -165,7 +86,7 @@ class Recorder(AtomicOutput):
         # fourth timeline the viewer might pick by default.
         self._rec.set_log_time_enabled(False)
         try:
-            self._pipe = _Pipe(self._tmp)
+            self._pipe = Pipe(self._tmp)
             self._rec.save(self._pipe.path, write_footer=WRITE_FOOTER)
             self._pipe.start()
         except OSError as e:
@@ -448,7 +369,7 @@ class Recorder(AtomicOutput):
     def _log_sources(self) -> None:
         """The masks the fits used, once, per track: a line per source with its frames."""
         lines = [
-            f"- track {track}: {source}, frames {_spans(frames)}"
+            f"- track {track}: {source}, frames {spans(frames)}"
             for track, sources in sorted(self._sources.items())
             for source, frames in sources.items()
         ]
@@ -507,221 +428,9 @@ class Recorder(AtomicOutput):
         check_shape(image, (3, self.camera.height, self.camera.width), name)
 
 
-class _Pipe:
-    """A named pipe for rerun's file sink to write into, copied into ``target`` by a thread.
-
-    The pipe is made in a private temporary folder and its name removed once both ends are open
-    (:meth:`start`), so that nothing of it outlives the process. The thread reads until rerun
-    closes its end (on disconnect) and never stops reading before: after a write error it keeps
-    draining and drops what it reads, so rerun's writer is never blocked and its flush and
-    disconnect always return. The first error is kept in :attr:`error`.
-
-    Raises:
-        OSError: ``target`` cannot be opened, or the pipe cannot be made.
-    """
-
-    def __init__(self, target: Path) -> None:
-        self.error: OSError | None = None
-        self._thread: threading.Thread | None = None
-        self._out: int | None = os.open(target, os.O_WRONLY | os.O_TRUNC | os.O_CLOEXEC)
-        self._folder: Path | None = None
-        self._in: int | None = None
-        try:
-            self._folder = Path(tempfile.mkdtemp(prefix="sfb-video-recording-"))
-            self.path = self._folder / "pipe"
-            os.mkfifo(self.path, 0o600)
-            # Non-blocking, or opening the reading end would wait for a writer; rerun's save()
-            # opens its end synchronously, and finds this one there.
-            self._in = os.open(self.path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
-        except BaseException:
-            self._close()
-            raise
-
-    def start(self) -> None:
-        """Start copying, once rerun has opened its end (rerun's ``save`` returned)."""
-        assert self._in is not None
-        self._remove_name()
-        os.set_blocking(self._in, True)
-        self._thread = threading.Thread(target=self._copy, name="sfb-video recording writer", daemon=True)
-        self._thread.start()
-
-    def finish(self, timeout_s: float) -> None:
-        """Wait for the copy to end (rerun has closed its end) and close the file.
-
-        Raises:
-            OSError: the first write error, or TimeoutError if the copy did not end in time.
-        """
-        if self._thread is not None:
-            self._thread.join(timeout_s)
-            if self._thread.is_alive():
-                # A disk that stopped answering: the thread (a daemon) is left to it.
-                raise TimeoutError(f"the recording was not written within {timeout_s:g} s")
-        self._close()
-        if self.error is not None:
-            raise self.error
-
-    def _copy(self) -> None:
-        assert self._in is not None and self._out is not None
-        try:
-            while chunk := os.read(self._in, PIPE_READ_SIZE):
-                if self.error is None:
-                    try:
-                        _write_all(self._out, chunk)
-                    except OSError as e:
-                        self.error = e
-        except OSError as e:  # reading a pipe fails only if something is badly wrong; keep it
-            self.error = self.error or e
-        finally:
-            self._close()
-
-    def _close(self) -> None:
-        """Close both descriptors and remove the pipe's name; safe to call more than once."""
-        fd_in, fd_out, self._in, self._out = self._in, self._out, None, None
-        if fd_in is not None:
-            with contextlib.suppress(OSError):
-                os.close(fd_in)
-        if fd_out is not None:
-            try:
-                os.close(fd_out)
-            except OSError as e:  # some file systems (NFS) report a failed write only here
-                self.error = self.error or e
-        self._remove_name()
-
-    def _remove_name(self) -> None:
-        folder, self._folder = self._folder, None
-        if folder is not None:
-            with contextlib.suppress(OSError):
-                (folder / "pipe").unlink(missing_ok=True)
-                folder.rmdir()
-
-
-def shape_text(windows: Sequence[dict]) -> str:
-    """Markdown: per joint window (summary.json's ``joint.windows``), its track, frames and
-    shape, and where a trial of shapes chose it (a track's first window, with ``joint.prototypes``)
-    how clearly: its margin and each shape's score over the sphere's. Other windows carry on the
-    shape of the track's earlier fits (the previous window's, or the single-frame fits')."""
-    if not windows:
-        return "No joint windows: every frame shows its single-frame fit."
-    lines = ["| track | frames | shape | margin | scores over the sphere's |", "|---:|---|---|---:|---|"]
-    for w in windows:
-        margin = w.get("shape_margin")
-        scores = ", ".join(f"{name} {value:.2f}" for name, value in (w.get("shape_trial") or {}).items())
-        scores = scores or "no trial: the shape of the track's earlier fits"
-        lines.append(
-            f"| {w['track']} | {_spans(w['frames'])} | {w['prototype']} | "
-            f"{'-' if margin is None else format(margin, '+.2f')} | {scores} |"
-        )
-    return "\n".join(lines)
-
-
-def _spans(frames: Sequence[int]) -> str:
-    """Frame indices as runs: [0, 1, 2, 5] -> "0-2, 5"."""
-    runs: list[list[int]] = []
-    for f in sorted(frames):
-        if runs and f == runs[-1][1] + 1:
-            runs[-1][1] = f
-        else:
-            runs.append([f, f])
-    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
-
-
-def layout(tracks: Sequence[int], paths: Sequence[np.ndarray], subframes: int) -> rrb.Blueprint:
-    """The viewer's layout of a recording (its blueprint), for what a person comes to see.
-
-    Top: the input frame with its detection (and masks) beside the super-resolved sub-frame.
-    Bottom: the 3D view framed on the trajectories, beside tabs: one per track (its losses per
-    frame and how much it explains), the fits' loss curves (on the step timeline), the
-    reconstruction and background, the run's text (masks, summary, config). It opens on the
-    subframe timeline (the frame timeline for a recording of one sub-frame per frame), where
-    every panel it shows has content. Its views' ids are derived from their place in it, so the
-    same recording's layout is the same at every load and two runs write the same layout.
-
-    Args:
-        tracks: the tracks fitted; paths: (P, 3) each track's 3D positions.
-    """
-    per_track = [
-        rrb.TimeSeriesView(
-            name=f"track {t}",
-            origin="/",
-            contents=[f"losses/track_{t:02d}/**", f"quality/track_{t:02d}/**"],
-        )
-        for t in tracks
-    ]
-    curves = rrb.TimeSeriesView(name="fit curves (step timeline)", origin="fit")
-    text = rrb.Vertical(
-        rrb.TextDocumentView(name="shapes", origin="run/shapes"),
-        rrb.TextDocumentView(name="masks", origin="run/masks"),
-        rrb.TextDocumentView(name="summary", origin="run/summary"),
-        rrb.TextDocumentView(name="config", origin="run/config"),
-        name="run",
-    )
-    images = rrb.Horizontal(
-        rrb.Spatial2DView(name="reconstruction", origin="reconstruction"),
-        rrb.Spatial2DView(name="background", origin="background"),
-        name="reconstruction",
-    )
-    scene = rrb.Spatial3DView(
-        name="3D",
-        origin="world",
-        # The frame on the camera's frustum would hide the object behind it from this eye.
-        contents=["+ $origin/**", "- world/camera/image/**"],
-        eye_controls=_eye(paths),
-    )
-    root = rrb.Vertical(
-        rrb.Horizontal(
-            rrb.Spatial2DView(name="input and detection", origin="world/camera/image"),
-            rrb.Spatial2DView(name="super-resolved", origin="tsr"),
-        ),
-        rrb.Horizontal(scene, rrb.Tabs(*per_track, curves, images, text, active_tab=0)),
-        row_shares=[3, 2],
-    )
-    _fix_ids(root, "root")
-    timeline = SUBFRAME if subframes > 1 else FRAME
-    return rrb.Blueprint(root, rrb.TimePanel(timeline=timeline, state="expanded"), auto_layout=False, auto_views=False)
-
-
-def _eye(paths: Sequence[np.ndarray]) -> rrb.archetypes.EyeControls3D | None:
-    """An eye looking along the camera's axis at the middle of the trajectories, back far enough
-    to see them whole (None: no trajectory; the viewer frames the scene)."""
-    points = [p for p in paths if len(p)]
-    if not points:
-        return None
-    every = np.concatenate(points).astype(np.float64)
-    low, high = every.min(0), every.max(0)
-    target = (low + high) / 2
-    # In object sizes: a still object is still seen at a few of its sizes.
-    distance = 1.2 * float(np.linalg.norm(high - low)) + EYE_MIN_DISTANCE
-    # The camera frame is RDF (y down): the eye sits a little above the camera's axis.
-    direction = np.array([0.0, -0.35, -1.0]) / np.linalg.norm([0.0, -0.35, -1.0])
-    return rrb.archetypes.EyeControls3D(
-        kind="Orbital", position=target + distance * direction, look_target=target, eye_up=[0.0, -1.0, 0.0]
-    )
-
-
-def _fix_ids(part: rrb.Container | rrb.View, place: str) -> None:
-    """Give ``part`` and what it holds ids derived from ``place``, not random ones."""
-    part.id = uuid.uuid5(uuid.NAMESPACE_URL, f"{APPLICATION_ID}:layout:{place}")
-    if isinstance(part, rrb.Container):  # a view's contents are its entity queries
-        for i, inner in enumerate(part.contents):
-            _fix_ids(inner, f"{place}/{i}")
-
-
-def _write_all(fd: int, data: bytes) -> None:
-    """Write all of ``data`` to ``fd``: a write may take only part of it (a short write just
-    before the disk is full), and only the next one reports why."""
-    view = memoryview(data)
-    while view:
-        view = view[os.write(fd, view) :]
-
-
 def _jpeg(image: torch.Tensor) -> rr.EncodedImage | rr.Image:
     """A (3, H, W) image in [0, 1] as a JPEG-encoded rerun image."""
     return rr.Image(to_uint8(image), color_model="RGB").compress(jpeg_quality=JPEG_QUALITY)
-
-
-def track_entity(track: int) -> str:
-    """The entity of track ``track``'s object: its mesh and pose."""
-    return f"world/track_{track:02d}/object"
 
 
 def _transform(rotation: torch.Tensor, position: torch.Tensor) -> rr.Transform3D:
