@@ -27,6 +27,7 @@ from sfb_video.config import Config
 from sfb_video.devices import resolve_device
 from sfb_video.errors import OutputError, SfbError, printable
 from sfb_video.stages.process import ClipOptions, finished_summary, process_clip
+from sfb_video.stages.types import FrameStatus
 
 VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".flv"})
 """A folder's files with these suffixes are its clips."""
@@ -146,13 +147,12 @@ def run_clip(
         summary = finished_summary(process, config, where)
         note = "finished before: nothing to do"
         if summary is None:
-            done = 0
+            done: set[int] = set()
 
-            def on_frame(_: object) -> None:
-                nonlocal done
-                done += 1
+            def on_frame(status: FrameStatus) -> None:
+                done.add(status.index)  # a frame of several objects reports each
                 if report is not None:
-                    report(job.name, done)
+                    report(job.name, len(done))
 
             summary = process_clip(process, config, where, quiet=True, on_frame=on_frame)
             note = ""

@@ -1,8 +1,8 @@
 """What the video pipeline keeps of each fitted frame, and how it is saved and loaded.
 
-One :class:`FrameResult` per frame in which the object was fitted. It is saved as soon as the
-frame is done (:func:`sfb_video.run_folder.frame_path`, written atomically), which is what lets
-an interrupted run resume and ``sfb-video export`` re-render without fitting again. The joint
+One :class:`FrameResult` per frame in which the object was fitted. It is saved once no later
+frame can change it (:func:`sfb_video.run_folder.frame_path`, written atomically), which is what
+lets an interrupted run resume and ``sfb-video export`` re-render without fitting again. The joint
 fit of a window of a track is saved the same way, as a :class:`SavedWindow`
 (:func:`sfb_video.run_folder.window_path`).
 """
@@ -107,10 +107,21 @@ def _motion_record(motion: Motion) -> dict[str, torch.Tensor]:
     return {k: getattr(motion, k).detach().cpu() for k in ("x0", "dx", "rot0", "omega")}
 
 
-def save_result(folder: Path, result: FrameResult) -> None:
-    """Write ``result`` into the run ``folder``, atomically."""
+def save_result(folder: Path, result: FrameResult, followed: FrameResult | None = None) -> None:
+    """Write ``result`` into the run ``folder``, atomically; with ``followed``, the fit its track
+    went on from where a track that started later refitted the frame (:func:`load_followed`)."""
+    record = _record(result)
+    if followed is not None:
+        record["followed"] = _record(followed)
+    buffer = io.BytesIO()
+    torch.save(record, buffer)
+    ensure_folder(folder / FRAMES)
+    atomic_write_bytes(frame_path(folder, result.index, result.track), buffer.getvalue())
+
+
+def _record(result: FrameResult) -> dict[str, Any]:
     s = result.state
-    record: dict[str, Any] = {
+    return {
         "index": result.index,
         "detection_box": list(result.detection_box),
         "crop_box": list(result.crop_box),
@@ -132,16 +143,24 @@ def save_result(folder: Path, result: FrameResult) -> None:
         "masks_reversed": result.masks_reversed,
         "track": result.track,
     }
-    buffer = io.BytesIO()
-    torch.save(record, buffer)
-    ensure_folder(folder / FRAMES)
-    atomic_write_bytes(frame_path(folder, result.index, result.track), buffer.getvalue())
 
 
 def load_result(path: Path) -> FrameResult:
     """Read a result written by :func:`save_result` (tensors on the CPU)."""
+    return _loaded(path, followed=False)
+
+
+def load_followed(path: Path) -> FrameResult:
+    """The fit a track went on from in a saved frame: the one saved with it where a later track
+    refitted the frame (:func:`save_result`), else the frame's own."""
+    return _loaded(path, followed=True)
+
+
+def _loaded(path: Path, followed: bool) -> FrameResult:
     try:
         r = torch.load(path, map_location="cpu", weights_only=True)
+        if followed:
+            r = r.get("followed") or r
         topology = MeshTopology.build(r["faces"], r["uvs"], r["face_uvs"])
         state = ObjectState(r["vertices"], topology, r["texture"], Motion(**r["motion"]))
         return FrameResult(

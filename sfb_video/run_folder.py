@@ -83,14 +83,6 @@ def frame_path(folder: Path, index: int, track: int) -> Path:
     return folder / FRAMES / f"frame_{index:05d}_track_{track:02d}.pt"
 
 
-def followed_path(folder: Path, index: int, track: int) -> Path:
-    """Where a run folder keeps the first fit of track ``track``'s object in frame ``index``, the
-    fit the track went on from, where a track that started later refitted it on its share of the
-    blob (:func:`sfb_video.stages.track.track_and_fit` looks back): a resumed run follows the
-    track as the first run did."""
-    return folder / FRAMES / "followed" / f"frame_{index:05d}_track_{track:02d}.pt"
-
-
 def saved_frames(folder: Path) -> set[tuple[int, int]]:
     """(frame index, track) of every object fit saved in a run ``folder``."""
     saved = set()

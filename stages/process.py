@@ -1,11 +1,11 @@
 """The whole pipeline for one clip: read -> background -> track (detect, fit) -> joint -> export.
 
 The run folder (:mod:`sfb_video.run_folder`) is created, resumed or staged for replacement
-first. Every fitted frame, and every window's joint fit, is saved into it as soon as it is
-done; a run that stops (Ctrl-C, a crash, a full disk) resumes from there when started again
-with the same clip and config. The
-exports are written last, from the saved results, ``summary.json`` after them, and the run is
-marked finished (and a replacement swapped in) only then.
+first. Every fitted frame is written into it once no later frame can change it (at most a few
+frames after it is fitted), and every window's joint fit when it is done; each file is written
+once. A run that stops (Ctrl-C, a crash, a full disk) resumes from there when started again with
+the same clip and config. The exports are written last, from the saved results,
+``summary.json`` after them, and the run is marked finished (and a replacement swapped in) only then.
 """
 
 from __future__ import annotations
@@ -331,8 +331,8 @@ def process_clip(
 ) -> dict:
     """Run the pipeline on one clip into ``options.out`` and return its summary.
 
-    ``on_frame`` is told each frame's status as soon as the frame is done (a resumed run's
-    saved frames included).
+    ``on_frame`` is told each status of each frame (one per object) once the frame is final and
+    written, in frame order (a resumed run's saved frames included).
 
     Raises:
         SfbError: bad input, bad options, an unusable output folder.

@@ -4,10 +4,11 @@ time runs through them.
 Frames stream through with their difference masks. Each frame's object is looked for near
 where the track's last fit predicts it (its motion continued across the gap between exposures,
 :func:`predict`); nothing near starts a new track. Each detection is fitted (warm from the
-track's last frame) and saved into the run folder as soon as it is done, which is what a
-resumed run reuses. One frame cannot tell which end of its streak came first (DeFMO's sub-frame
-masks order a frame, but may run either way themselves): :func:`join` picks the directions that
-make consecutive frames meet end to start, and that order between frames wins over DeFMO's.
+track's last frame) and written into the run folder once no later frame can change it
+(:class:`~sfb_video.stages.frame_buffer.FrameBuffer`), which is what a resumed run reuses.
+One frame cannot tell which end of its streak came first (DeFMO's sub-frame masks order a frame,
+but may run either way themselves): :func:`join` picks the directions that make consecutive
+frames meet end to start, and that order between frames wins over DeFMO's.
 
 Where several objects' streaks touch, their blob is shared out among their tracks by nearness
 to their predicted streaks; an object whose streak lay inside another's blob before it had a
@@ -19,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import Counter, deque
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TypeVar
@@ -27,15 +28,14 @@ from typing import TypeVar
 import numpy as np
 import torch
 
-from sfb_video.atomic import atomic_write_bytes
 from sfb_video.config import Config, CropConfig
 from sfb_video.crop import Box, box_mask, crop_box, mask_box
 from sfb_video.defmo import INPUT_SIZE
 from sfb_video.errors import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion
-from sfb_video.results import FrameResult, load_result, save_result
-from sfb_video.run_folder import ensure_folder, followed_path, frame_path, saved_frames
+from sfb_video.results import FrameKey, FrameResult, load_followed, load_result
+from sfb_video.run_folder import frame_path, saved_frames
 from sfb_video.stages.detect import (
     FrameBlobs,
     Neighbour,
@@ -50,11 +50,11 @@ from sfb_video.stages.detect import (
     still_there,
 )
 from sfb_video.stages.fit import continued, fit_detection
+from sfb_video.stages.frame_buffer import FrameBuffer, Pending, StepReport
 from sfb_video.stages.masks import MaskSource
 from sfb_video.stages.register import mask_onto_next, segment_of, usable
 from sfb_video.stages.types import Detection, Frame, FrameStatus, FrameWithBackground, Prediction, Status
 
-StepReport = Callable[[FrameStatus, FrameResult | None], None]
 T = TypeVar("T")
 
 
@@ -496,7 +496,7 @@ class Tracker:
     def found(self, followed: FrameResult | None) -> FrameResult | None:
         """Take what :func:`follow` found: the track's last frame in the direction that predicted
         the object, or None (a new track starts). Returns that frame where it was reversed (to be
-        saved so), else None."""
+        kept so), else None."""
         if followed is None:
             self.lose()
             self.earlier = None
@@ -516,7 +516,7 @@ class Tracker:
 
         Returns:
             the track's number, ``result`` in the track's time direction (and numbered so), and
-            the track's previous frame where joining reversed it (to be saved so), else None.
+            the track's previous frame where joining reversed it (to be kept so), else None.
         """
         if self.previous is None:
             self.number = self.numbers.next
@@ -565,8 +565,8 @@ def track_and_fit(
     masks: MaskSource | None = None,
     report: StepReport | None = None,
 ) -> list[FrameStatus]:
-    """Detect and fit every object of every frame, saving each fit into the run ``folder`` as
-    soon as it is done; fits already saved there are reused.
+    """Detect and fit every object of every frame, writing each fit into the run ``folder`` once
+    no later frame can change it; fits already written there are reused.
 
     Every fast mover has its own track (at most ``video.max_objects`` at once; 0: all). In each
     frame the tracks look for their objects first, each among the blobs that no other has
@@ -586,11 +586,13 @@ def track_and_fit(
         without any), in frame order, then track order.
     """
     saved = saved_frames(folder)
-    statuses: list[FrameStatus] = []
     held: deque[list[_Held]] = deque(maxlen=config.track.look_back + _proven(config) + 1)
     numbers = TrackNumbers()
     live: list[Tracker] = []
     limit = config.video.max_objects or math.inf
+    # One track at a time: none starts beside another to look back.
+    looks_back = limit > 1 and config.track.look_back > 0
+    buffer = FrameBuffer(folder, report)
     segment = 0
     for frame, mask, neighbours in with_neighbours(frames, config):
         if segment_of(frame) != segment:
@@ -598,9 +600,8 @@ def track_and_fit(
             live, segment = [], segment_of(frame)
         if not usable(frame):
             live = []
-            statuses.append(FrameStatus(frame.index, Status.FAILED, note=frame.registered.note))
-            if report is not None:
-                report(statuses[-1], None)
+            buffer.add(frame.index, [Pending(FrameStatus(frame.index, Status.FAILED, note=frame.registered.note))])
+            buffer.write_before(frame.index + 1 - len(held))
             continue
         moving = moving_mask(mask, neighbours, config.detect)
         found = frame_blobs(moving, config.detect, (frame.pixels, frame.background_pixels), mask)
@@ -635,7 +636,7 @@ def track_and_fit(
             (label, others), option, prediction = followed
             reversed_first = tracker.found(option)
             if reversed_first is not None:
-                save_result(folder, reversed_first)  # the track's first frame, now known to run the other way
+                buffer.reoriented(reversed_first)  # the track's first frame, now known to run the other way
             taken.add(label)
             objects.append(claim or _Claim(tracker, label, others, prediction))
         live = [t for t in live if t.previous is not None]
@@ -650,14 +651,14 @@ def track_and_fit(
         objects += [_Claim(Tracker(camera, config, numbers), label, 0, None) for label in fresh[:room]]
         untracked = len(fresh) - room
         owner = {c.label: c.tracker for c in objects}
-        results: list[FrameStatus] = []
+        results: list[Pending] = []
         fits: list[tuple[_Claim, _HeldFit]] = []
         proven: list[Tracker] = []
         for claim in objects:
             tracker, label = claim.tracker, claim.label
             detection = found.detection(frame.index, label, claim.others, claim.part)
             key = (frame.index, tracker.upcoming)
-            loaded = _followed(folder, key) if key in saved else None
+            loaded = load_followed(frame_path(folder, *key)) if key in saved else None
             note = f"{untracked} other moving object(s) seen, not tracked (video.max_objects)" if untracked else ""
             crossed = [t for t, lab in merged if lab == label and t.number is not None]
             if crossed:
@@ -671,43 +672,34 @@ def track_and_fit(
                 result = loaded or fit_detection(frame, detection, camera, config, start, device, masks, before)
             except NoObjectError as exc:
                 tracker.lose()
-                results.append(FrameStatus(frame.index, Status.NO_OBJECT, detection.box, str(exc)))
-                report_result = None
+                results.append(Pending(FrameStatus(frame.index, Status.NO_OBJECT, detection.box, str(exc))))
             else:
                 shared = bool(claim.shared_with)
                 track, result, reversed_previous = tracker.add(result, detection.colour, shared)
                 if reversed_previous is not None:
-                    save_result(folder, reversed_previous)
-                if result is not loaded:
-                    save_result(folder, result)
+                    buffer.reoriented(reversed_previous)
                 if tracker not in live:
                     live.append(tracker)
-                results.append(FrameStatus(frame.index, Status.FITTED, detection.box, note, track, shared))
+                status = FrameStatus(frame.index, Status.FITTED, detection.box, note, track, shared)
+                results.append(Pending(status, result, saved=result is loaded))
                 fits.append((claim, _HeldFit(tracker, track, claim.prediction, claim.part, start, before)))
                 if not shared and tracker.length == _proven(config):
                     proven.append(tracker)
-                report_result = result
-            if report is not None:
-                report(results[-1], report_result)
         for tracker, label in merged:
             if tracker.previous is not None:
                 into = owner[label].number
-                results.append(
-                    FrameStatus(
-                        frame.index, Status.MERGED, None, f"its streak merged into track {into}'s", tracker.number
-                    )
-                )
-        if not results:
-            results.append(FrameStatus(frame.index, Status.NO_OBJECT))
-            if report is not None:
-                report(results[-1], None)
-        statuses += sorted(results, key=lambda r: -1 if r.track is None else r.track)
-        if limit > 1:  # one track at a time: none starts beside another to look back
+                note = f"its streak merged into track {into}'s"
+                results.append(Pending(FrameStatus(frame.index, Status.MERGED, None, note, tracker.number)))
+        buffer.add(frame.index, results or [Pending(FrameStatus(frame.index, Status.NO_OBJECT))])
+        if looks_back:
             held.append(_held_blobs(frame, found, fits, config))
         for tracker in proven:
-            looked = _look_back(tracker, list(held), folder, saved, camera, config, device, masks)
-            statuses = _restated(statuses, looked)
-    return short_tracks_dropped(statuses, config.video.min_track_frames)
+            _look_back(tracker, list(held), buffer, saved, camera, config, device, masks)
+        # A frame may change while a track's look back can reach it (the frames ``held``), and a
+        # track's first frame until its second fixes its time direction.
+        opened = any(t.length == 1 and t.previous is not None and t.previous.index == frame.index for t in live)
+        buffer.write_before(frame.index + 1 - max(len(held), int(opened)))
+    return short_tracks_dropped(buffer.close(), config.video.min_track_frames)
 
 
 @dataclass
@@ -875,34 +867,32 @@ def _held_blobs(
 def _look_back(
     tracker: Tracker,
     held: list[list[_Held]],
-    folder: Path,
+    buffer: FrameBuffer,
     saved: set[tuple[int, int]],
     camera: PinholeCamera,
     config: Config,
     device: torch.device,
     masks: MaskSource | None,
-) -> list[FrameStatus]:
+) -> None:
     """A track just fitted in enough frames to be kept (:func:`_proven`) looks back for its object
     in the ``track.look_back`` frames before its first, inside blobs that other tracks, still going,
     took whole (its object had no track yet to share them with): where its streak, moved back at
     its pace in the image, takes enough of such a blob, and the blob is larger by as much than its
     tracks' own of the next frame (``track.look_back_share``), the blob is shared out, each track's
-    part refitted (its first fit kept apart, :func:`followed_path`, for a
-    resumed run to follow the tracks as this one did), and the track's fit there joins it
-    (warm from its next frame, the time run backwards).
-
-    Returns:
-        the statuses of the frames looked into that changed: the other tracks' and this one's.
+    part refitted in the ``buffer`` (the fit each track went on from kept with it, for a resumed
+    run to follow the tracks as this one did), and the track's fit there joins it (warm from its
+    next frame, the time run backwards).
     """
     last = tracker.previous
     assert last is not None and tracker.number is not None
     by_index = {blobs[0].index: blobs for blobs in held if blobs}
     mine = sorted((h.index, _area(h, f)) for hs in held for h in hs for f in h.fits if f.tracker is tracker)
     if not mine or mine[0][0] == last.index:
-        return []
-    first = _followed(folder, (mine[0][0], tracker.number))
+        return
+    first = buffer.followed(FrameKey(mine[0][0], tracker.number))
+    assert first is not None  # the track's first frame is held
     own_area = mine[0][1]
-    later, restated = first, []
+    later = first
     for index in range(first.index - 1, first.index - 1 - config.track.look_back, -1):
         prediction = glide(first, last, index, camera)
         best: tuple[float, _Held, list[np.ndarray]] | None = None
@@ -910,7 +900,7 @@ def _look_back(
             if not any(_goes_on(f, first.index) for f in blob.fits):
                 continue
             # A track's first frame was found with no prediction: where its next two put it.
-            predicted = [f.prediction or _first_prediction(index, f, folder, camera) for f in blob.fits]
+            predicted = [f.prediction or _first_prediction(index, f, buffer, camera) for f in blob.fits]
             ahead = [p for p in predicted if p is not None]
             if len(ahead) < len(predicted):
                 continue
@@ -926,33 +916,29 @@ def _look_back(
             break
         _, blob, parts = best
         frame = blob.frame()
-        found_late = (index, tracker.number) in saved  # a resumed run: refitted and saved before
         fits = [*blob.fits, _HeldFit(tracker, tracker.number, prediction, parts[-1], None, None)]
+        # A resumed run: every part refitted and written before (a frame stopped midway is refitted).
+        found_late = all((index, fit.number) in saved for fit in fits)
         # This track's fit starts warm from its next frame, its time run backwards.
         mirrored = dataclasses.replace(later.reversed(), index=2 * index - later.index)
         starts = [f.start for f in blob.fits] + [mirrored]
         detections = [blob.detection(part) for part in parts]
         try:
             results = [
-                _refitted(frame, detection, fit, start, folder, camera, config, device, masks, found_late)
+                _refitted(frame, detection, fit, start, buffer, camera, config, device, masks, found_late)
                 for fit, detection, start in zip(fits, detections, starts, strict=True)
             ]
         except NoObjectError:
             break
         for fit, part, detection, result in zip(fits, parts, detections, results, strict=True):
-            first_fit = followed_path(folder, index, fit.number)
-            if fit.tracker is not tracker and not first_fit.is_file():
-                ensure_folder(first_fit.parent)
-                atomic_write_bytes(first_fit, frame_path(folder, index, fit.number).read_bytes())
-            save_result(folder, result)  # this track's last: a resumed run finds it and all saved
             fit.part = part
             others = ", ".join(str(f.number) for f in fits if f is not fit)
             note = f"its streak touched track(s) {others}'s: their pixels shared out by nearness, looking back"
-            restated.append(FrameStatus(index, Status.FITTED, detection.box, note, fit.number, True))
+            status = FrameStatus(index, Status.FITTED, detection.box, note, fit.number, True)
+            buffer.refitted(status, result, found_late)
         blob.fits.append(fits[-1])
         tracker.length += 1
         later = results[-1]
-    return restated
 
 
 def _proven(config: Config) -> int:
@@ -984,7 +970,7 @@ def _refitted(
     detection: Detection,
     fit: _HeldFit,
     start: FrameResult | None,
-    folder: Path,
+    buffer: FrameBuffer,
     camera: PinholeCamera,
     config: Config,
     device: torch.device,
@@ -995,9 +981,9 @@ def _refitted(
     ``start``, in the track's time direction (:func:`_joined`); ``found_late``: saved already
     (a resumed run)."""
     if found_late:
-        return load_result(frame_path(folder, frame.index, fit.number))
+        return load_result(FrameKey(frame.index, fit.number).path(buffer.folder))
     result = fit_detection(frame, detection, camera, config, start, device, masks, fit.earlier)
-    return _joined(dataclasses.replace(result, track=fit.number), fit.start, folder, camera, config)
+    return _joined(dataclasses.replace(result, track=fit.number), fit.start, buffer, camera, config)
 
 
 def glide(at: FrameResult, other: FrameResult, index: int, camera: PinholeCamera) -> Prediction:
@@ -1015,20 +1001,13 @@ def glide(at: FrameResult, other: FrameResult, index: int, camera: PinholeCamera
     return Prediction(on(moved.centre), moved.diameter, None, ends)
 
 
-def _first_prediction(index: int, fit: _HeldFit, folder: Path, camera: PinholeCamera) -> Prediction | None:
+def _first_prediction(index: int, fit: _HeldFit, buffer: FrameBuffer, camera: PinholeCamera) -> Prediction | None:
     """Where a track's first frame ``index`` (``fit``, found with no prediction) should be by the
-    track's next two saved frames, or None without them."""
-    keys = [(index + k, fit.number) for k in (1, 2)]
-    if not all(frame_path(folder, *key).is_file() for key in keys):
+    track's next two frames, or None without them."""
+    nearer, further = (buffer.followed(FrameKey(index + k, fit.number)) for k in (1, 2))
+    if nearer is None or further is None:
         return None
-    return glide(_followed(folder, keys[0]), _followed(folder, keys[1]), index, camera)
-
-
-def _followed(folder: Path, key: tuple[int, int]) -> FrameResult:
-    """The saved fit a track went on from in frame and track ``key``: its first fit, where a
-    track that started later refitted the frame (:func:`_look_back`)."""
-    first_fit = followed_path(folder, *key)
-    return load_result(first_fit if first_fit.is_file() else frame_path(folder, *key))
+    return glide(nearer, further, index, camera)
 
 
 def _goes_on(fit: _HeldFit, index: int) -> bool:
@@ -1037,28 +1016,17 @@ def _goes_on(fit: _HeldFit, index: int) -> bool:
 
 
 def _joined(
-    result: FrameResult, start: FrameResult | None, folder: Path, camera: PinholeCamera, config: Config
+    result: FrameResult, start: FrameResult | None, buffer: FrameBuffer, camera: PinholeCamera, config: Config
 ) -> FrameResult:
     """A refitted frame of a track in the track's time direction: joined to the frame it started
-    from, or where it started cold (the track's first frame), to the track's next saved frame."""
+    from, or where it started cold (the track's first frame), to the track's next frame."""
     e = config.video.exposure_fraction
     if start is not None:
         return join(start, result, camera, e, may_flip_previous=False)[1]
-    after = (result.index + 1, result.track)
-    if not frame_path(folder, *after).is_file():
+    following = buffer.followed(FrameKey(result.index + 1, result.track))
+    if following is None:
         return result
-    following = _followed(folder, after)
     return min((result, result.reversed()), key=lambda r: join_gap(r, following, camera, e))
-
-
-def _restated(statuses: list[FrameStatus], changed: list[FrameStatus]) -> list[FrameStatus]:
-    """``statuses`` (in frame order, then track order) with ``changed`` ones in place of those of
-    their frames and tracks, or added among their frames'."""
-    if not changed:
-        return statuses
-    new = {(s.index, s.track): s for s in changed}
-    kept = [s for s in statuses if (s.index, s.track) not in new]
-    return sorted([*kept, *new.values()], key=lambda s: (s.index, -1 if s.track is None else s.track))
 
 
 def short_tracks_dropped(statuses: list[FrameStatus], least: int) -> list[FrameStatus]:

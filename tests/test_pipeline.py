@@ -151,16 +151,16 @@ def test_the_track_is_fitted_jointly_and_the_outputs_follow_it(run: Run) -> None
 
 
 def test_saved_windows_are_reused_without_reading_the_clip(run: Run) -> None:
-    from sfb_video.stages.run_results import read_run
+    from sfb_video.stages.run_results import RunResults
     from sfb_video.stages.windows import fit_windows
 
-    _, statuses = read_run(run.out)
+    results = RunResults.of_run(run.out, run.config.joint)
 
     def unread():
         raise AssertionError("the clip was read although every window is saved")
         yield
 
-    windows = fit_windows(unread(), run.out, statuses, run.clip.camera, run.config, CPU)
+    windows = fit_windows(unread(), run.out, results, run.clip.camera, run.config, CPU)
     assert [w.frames for w in windows] == [list(range(run.config.demo.frames))]
 
 
@@ -199,15 +199,18 @@ def test_an_interrupted_run_resumes_from_the_last_finished_frame(
         return real_fit(*args, **kwargs)
 
     options = ProcessOptions(video=run.video, out=out)
+    # One object, one track at a time: no track looks back, so a frame is written once the next
+    # one is fitted (its direction fixed), not held for a look back.
+    config = dataclasses.replace(run.config, video=dataclasses.replace(run.config.video, max_objects=1))
     with monkeypatch.context() as patch:
         patch.setattr(sfb_video.stages.track, "fit_detection", stop_at_the_third)
         with pytest.raises(KeyboardInterrupt):
-            process_clip(options, run.config, CPU, quiet=True)
+            process_clip(options, config, CPU, quiet=True)
     assert not (out / "summary.json").exists()
     saved = sorted(p.name for p in (out / "frames").iterdir())
     assert saved == ["frame_00000_track_00.pt", "frame_00001_track_00.pt"]
     stamps = {p: p.stat().st_mtime_ns for p in (out / "frames").iterdir()}
-    summary = process_clip(options, run.config, CPU, quiet=True)
+    summary = process_clip(options, config, CPU, quiet=True)
     assert summary["frames_fitted"] == run.config.demo.frames
     # Finished frames were reused, not fitted again, and the result is the uninterrupted one.
     for path, stamp in stamps.items():

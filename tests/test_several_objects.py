@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from benchmarks import multi_object
 from sfb_video.config import Config, load_config
 from sfb_video.crop import Box
 from sfb_video.evaluation.objects import Coverage, box_iou, cover_objects, spurious_tracks
-from sfb_video.results import load_result
+from sfb_video.results import load_followed, load_result
 from sfb_video.run_folder import frame_path, saved_frames
 from sfb_video.stages.background import running_median, with_backgrounds
 from sfb_video.stages.process import ProcessOptions, process_clip
@@ -100,7 +101,20 @@ def test_three_movers_touching_in_turn_keep_their_tracks(tmp_path: Path, monkeyp
     # through the others' blobs and took the pen's in frame 3. In frame 5 the pen's streak
     # touches the blob the other two already share. In frames 0-1 it lies inside the second's
     # blob, before it has a track: its track, fitted in frames 2-4, looks back for it there.
-    clip, truths, statuses = _tracked("three, a slow one beside", _config(), tmp_path)
+    writes: list[Path] = []
+    real_replace = os.replace
+
+    def replace(source: str | Path, target: str | Path) -> None:
+        writes.append(Path(target))
+        real_replace(source, target)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(os, "replace", replace)
+        clip, truths, statuses = _tracked("three, a slow one beside", _config(), tmp_path)
+    # Every fit written once, when no later frame could change it: the look back's refits of
+    # frames 0-1 and the reversed first frames are edits in memory.
+    fits = [w for w in writes if w.parent == tmp_path / "run" / "frames"]
+    assert len(fits) == len(set(fits)) == len(saved_frames(tmp_path / "run")), fits
     # A track's box is its nearest object's when centred within 20 px of it (shared-out parts
     # are small, so box overlap would miss them), but not where two objects are centred within 10
     # px of each other (frame 4: there the first and second are one over the other).
@@ -121,15 +135,16 @@ def test_three_movers_touching_in_turn_keep_their_tracks(tmp_path: Path, monkeyp
     looked = [(s.index, s.track) for s in statuses if s.touched and s.index < 2]
     assert sorted(looked) == [(0, main[1]), (0, main[2]), (1, main[1]), (1, main[2])], statuses
 
-    # Stopped after the look back refitted frames 0-1 and resumed, the run goes on as it went:
-    # a resumed run follows the second object from its first fits there, as this one did.
+    # Stopped after frame 0 was written, its refits with it, and resumed, the run goes on as it
+    # went: a resumed run follows the second object from its first fits there, as this one did.
     config = _config()
     frames = with_backgrounds(tmp_path / "clip.mp4", config.video, clip.frames.shape[0])
-    # Frames 0-4's fits and the second object's two refits: it stops at frame 5's first fit.
-    calls = sum(1 for s in statuses if s.status in ("fitted", "dropped") and s.index <= 4) + 2
+    # Frames 0-6's fits and the second object's two refits: it stops at frame 7's first fit,
+    # when frame 0 has left the frames the look back can reach.
+    calls = sum(1 for s in statuses if s.status in ("fitted", "dropped") and s.index <= 6) + 2
     real_fit = sfb_video.stages.track.fit_detection
 
-    def stop_in_frame_five(*args: object, **kwargs: object) -> object:
+    def stop_in_frame_seven(*args: object, **kwargs: object) -> object:
         nonlocal calls
         calls -= 1
         if calls < 0:
@@ -138,10 +153,14 @@ def test_three_movers_touching_in_turn_keep_their_tracks(tmp_path: Path, monkeyp
 
     (tmp_path / "resumed").mkdir()
     with monkeypatch.context() as patch:
-        patch.setattr(sfb_video.stages.track, "fit_detection", stop_in_frame_five)
+        patch.setattr(sfb_video.stages.track, "fit_detection", stop_in_frame_seven)
         with pytest.raises(KeyboardInterrupt):
             track_and_fit(frames, tmp_path / "resumed", clip.camera, config, CPU)
-    assert (tmp_path / "resumed" / "frames" / "followed").is_dir()  # the look back was done
+    written = saved_frames(tmp_path / "resumed")
+    assert {index for index, _ in written} == {0}, written  # the frames still held were lost
+    second = frame_path(tmp_path / "resumed", 0, main[1])
+    refit, followed = load_result(second), load_followed(second)  # the look back was done
+    assert refit.detection_box != followed.detection_box
     frames = with_backgrounds(tmp_path / "clip.mp4", config.video, clip.frames.shape[0])
     assert track_and_fit(frames, tmp_path / "resumed", clip.camera, config, CPU) == statuses
     for key in saved_frames(tmp_path / "run"):

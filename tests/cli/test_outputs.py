@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import sfb_video.stages.frame_buffer
 import sfb_video.stages.process
 import sfb_video.stages.track
 from sfb_video.cli import main
@@ -30,6 +31,8 @@ from sfb_video.video import VideoWriter
 TINY = ["demo.frames=4", "demo.width=120", "demo.height=90", "demo.size_px=[14.0, 16.0]"]
 QUICK = ["--config", "fast", "--device", "cpu", "--quiet", "--masks", "diff"]
 QUICK += ["--set", "fit.iterations=20", "--set", "fit.warm_iterations=10", "--set", "video.exposure_fraction=0.8"]
+# One object: no track looks back, so each frame is written as soon as the next one is fitted.
+QUICK += ["--max-objects", "1"]
 
 
 @pytest.fixture(scope="module")
@@ -99,20 +102,20 @@ def test_a_replacement_interrupted_keeps_the_old_run_and_resumes(
     real_fit = sfb_video.stages.track.fit_detection
     calls: list[int] = []
 
-    def interrupt_the_second(*args: object, **kwargs: object) -> object:
+    def interrupt_the_third(*args: object, **kwargs: object) -> object:
         calls.append(1)
-        if len(calls) == 2:
+        if len(calls) == 3:
             raise KeyboardInterrupt
         return real_fit(*args, **kwargs)
 
     args = ["process", str(clip), "--out", str(out), "--overwrite", "--tsr", "2", *QUICK]
     with monkeypatch.context() as patch:
-        patch.setattr(sfb_video.stages.track, "fit_detection", interrupt_the_second)
+        patch.setattr(sfb_video.stages.track, "fit_detection", interrupt_the_third)
         assert main(args) == 130
     _one_line(capsys, "interrupted", "stays as it was", "resume")
     assert _contents(out) == before
     staged = sibling(out, NEW_SUFFIX)
-    assert [p.name for p in (staged / "frames").iterdir()] == ["frame_00000_track_00.pt"]
+    assert sorted(p.name for p in (staged / "frames").iterdir()) == [f"frame_0000{i}_track_00.pt" for i in (0, 1)]
     args_loud = [a for a in args if a != "--quiet"]
     assert main(args_loud) == 0
     assert "resuming the unfinished replacement" in capsys.readouterr().out
@@ -169,24 +172,38 @@ def _fill(disk: Path) -> Path:
 
 
 def _after_saves(monkeypatch: pytest.MonkeyPatch, count: int, fault: Callable[[], None]) -> None:
-    """Run ``fault`` once, just before the fit of the frame after ``count`` saved ones."""
-    real_save = sfb_video.stages.track.save_result
+    """Run ``fault`` once, just before the fit written after ``count`` written ones."""
+    real_save = sfb_video.stages.frame_buffer.save_result
     saved: list[int] = []
 
-    def save(folder: Path, result: object) -> None:
-        real_save(folder, result)
-        saved.append(1)
-
-    real_fit = sfb_video.stages.track.fit_detection
-
-    def fit(*args: object, **kwargs: object) -> object:
+    def save(folder: Path, result: object, followed: object = None) -> None:
         if len(saved) == count:
             saved.append(-1)
             fault()
-        return real_fit(*args, **kwargs)
+        real_save(folder, result, followed)
+        saved.append(1)
 
-    monkeypatch.setattr(sfb_video.stages.track, "save_result", save)
-    monkeypatch.setattr(sfb_video.stages.track, "fit_detection", fit)
+    monkeypatch.setattr(sfb_video.stages.frame_buffer, "save_result", save)
+
+
+def test_no_file_of_a_run_folder_is_written_twice(clip: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Results flow one way: a fit, a window, an export is written once, when it is final (a
+    # track's first frame, reversed by its second, too); only the folder's marker is written
+    # when the run starts and again when it has finished.
+    out = tmp_path / "run"
+    writes: list[Path] = []
+    real_replace = os.replace
+
+    def replace(source: str | Path, target: str | Path) -> None:
+        writes.append(Path(target))
+        real_replace(source, target)
+
+    monkeypatch.setattr(os, "replace", replace)
+    assert main(["process", str(clip), "--out", str(out), "--tsr", "2", *QUICK]) == 0
+    counts = {path.relative_to(out).as_posix(): writes.count(path) for path in set(writes) if path.is_relative_to(out)}
+    assert counts.pop("run.json") == 2
+    assert set(counts.values()) == {1}, counts
+    assert {"tsr.mp4", "summary.json", "detections.json", "frames/frame_00000_track_00.pt"} <= set(counts)
 
 
 @pytest.mark.parametrize("saved_before", [0, 1])

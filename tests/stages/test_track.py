@@ -26,6 +26,7 @@ from sfb_video.run_folder import saved_frames
 from sfb_video.stages.background import running_median
 from sfb_video.stages.detect import FrameBlobs, frame_blobs, share_out
 from sfb_video.stages.fit import continued
+from sfb_video.stages.frame_buffer import FrameBuffer
 from sfb_video.stages.track import (
     Tracker,
     TrackNumbers,
@@ -38,7 +39,6 @@ from sfb_video.stages.track import (
     _new_objects,
     _on_its_streak,
     _proven,
-    _restated,
     _shared,
     follow,
     glide,
@@ -404,21 +404,6 @@ def test_the_region_kept_of_a_blob_holds_every_crop_of_a_part_of_it(seed: int, a
             assert rx <= cx and ry <= cy and cx + cw <= rx + rw and cy + ch <= ry + rh, ((x, y, w, h), (px, py, pw, ph))
 
 
-def test_statuses_found_looking_back_take_their_places_in_frame_and_track_order() -> None:
-    statuses = [
-        FrameStatus(0, "fitted", (0, 0, 9, 9), "", 1),
-        FrameStatus(0, "fitted", (20, 0, 9, 9), "", 2),
-        FrameStatus(1, "no_object"),
-        FrameStatus(2, "fitted", (0, 0, 9, 9), "", 2),
-    ]
-    changed = [
-        FrameStatus(0, "fitted", (20, 0, 5, 9), "", 2, True),
-        FrameStatus(0, "fitted", (25, 0, 4, 9), "", 3, True),
-    ]
-    assert _restated(statuses, changed) == [statuses[0], *changed, *statuses[2:]]
-    assert _restated(statuses, []) is statuses
-
-
 def _disc_blob(shape: tuple[int, int], centres: list[tuple[float, float]], radius: float) -> np.ndarray:
     v, u = np.mgrid[: shape[0], : shape[1]]
     return np.any([(u - x) ** 2 + (v - y) ** 2 <= radius**2 for x, y in centres], axis=0)
@@ -473,9 +458,11 @@ def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(
             held(3, np.zeros(shape, bool), []),
         ]
         fitted.clear()
-        assert _look_back(late, frames, tmp_path, set(), CAMERA, config, CPU, None) == []
+        buffer = FrameBuffer(tmp_path)
+        _look_back(late, frames, buffer, set(), CAMERA, config, CPU, None)
         assert fitted == looked  # refitted (and given up) only where the blob grew by the object
-    assert late.length == 3 and not (tmp_path / "frames" / "followed").exists()
+        assert buffer.close() == []  # nothing restated
+    assert late.length == 3 and saved_frames(tmp_path) == {(2, 1), (4, 1)}
 
 
 def test_a_track_coasts_for_its_config_s_frames_then_ends() -> None:
