@@ -56,11 +56,17 @@ class FrameBuffer:
         while self._frames and next(iter(self._frames)) < index:
             self._write(next(iter(self._frames)))
 
+    def directed(self, result: FrameResult) -> None:
+        """A track's first frame in the time direction its second frame's blob was found by: the
+        fit the track goes on from (its next frame's warm start)."""
+        pending = self._held(result.key)
+        pending.result, pending.saved = result, False
+
     def reoriented(self, result: FrameResult) -> None:
-        """A buffered fit in place of its frame's and track's: its track's first frame, whose
-        time direction its second frame fixed."""
-        pending = self._pending(result.key)
-        assert pending is not None, f"frame {result.index} of track {result.track} is no longer held"
+        """A track's first frame joined to its second in the direction that meets it: kept, and
+        the fit the track went on from kept as ``followed`` (a resumed run's warm start)."""
+        pending = self._held(result.key)
+        pending.followed = pending.followed or pending.result
         pending.result, pending.saved = result, False
 
     def refitted(self, status: FrameStatus, result: FrameResult, saved: bool = False) -> None:
@@ -90,6 +96,11 @@ class FrameBuffer:
         for index in list(self._frames):
             self._write(index)
         return self.statuses
+
+    def _held(self, key: FrameKey) -> Pending:
+        pending = self._pending(key)
+        assert pending is not None, f"frame {key.index} of track {key.track} is no longer held"
+        return pending
 
     def _pending(self, key: FrameKey) -> Pending | None:
         return next((p for p in self._frames.get(key.index, ()) if p.status.track == key.track), None)

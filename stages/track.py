@@ -636,7 +636,7 @@ def track_and_fit(
             (label, others), option, prediction = followed
             reversed_first = tracker.found(option)
             if reversed_first is not None:
-                buffer.reoriented(reversed_first)  # the track's first frame, now known to run the other way
+                buffer.directed(reversed_first)  # the track's first frame, found to run the other way
             taken.add(label)
             objects.append(claim or _Claim(tracker, label, others, prediction))
         live = [t for t in live if t.previous is not None]
