@@ -32,7 +32,7 @@ TINY = ["demo.frames=4", "demo.width=120", "demo.height=90", "demo.size_px=[14.0
 QUICK = ["--config", "fast", "--device", "cpu", "--quiet", "--masks", "diff"]
 QUICK += ["--set", "fit.iterations=20", "--set", "fit.warm_iterations=10", "--set", "video.exposure_fraction=0.8"]
 # One object: no track looks back, so each frame is written as soon as the next one is fitted.
-QUICK += ["--max-objects", "1"]
+QUICK += ["--set", "video.max_objects=1"]
 
 
 @pytest.fixture(scope="module")
