@@ -506,10 +506,9 @@ def side_by_side(blob: np.ndarray, difference: np.ndarray, config: DetectConfig)
 
     Cores that are not apart (:func:`apart`) are one object's, and so are the cores not apart from
     those, in a chain: a curved streak's pieces, each at an angle to the next, stay one object
-    (circle_fast.avi's swinging ball). Only cores of at least ``core_share`` of the largest
+    (a swinging ball's). Only cores of at least ``core_share`` of the largest
     count; their pixels go to their objects, every other pixel of the blob to the object whose
-    largest core's axis lies nearest. The hysteresis joins such streaks by their faint fringes:
-    falling_three.mp4's three objects, 7 to 12 px apart, in frames 9-11."""
+    largest core's axis lies nearest. (The hysteresis joins such streaks by their faint fringes.)"""
     min_area = config.min_area_px
     strong = (blob & (difference > config.threshold)).astype(np.uint8)
     close = np.ones((config.core_close_px,) * 2, np.uint8)
@@ -626,8 +625,7 @@ def pick_blob(
                 # colour than the track's object.
                 score /= 1 + (math.dist(colour, prediction.colour) / config.colour_scale) ** 2
             if found.shade(label):
-                # circle_fast.avi: the ball's shadow on the wall lay nearer a poor prediction
-                # than the ball, and as near the track's colour, which the arm had tinted.
+                # A shadow can lie nearer a poor prediction than the object, and as near its colour.
                 score /= config.shade_penalty
         candidates.append(label)
         if best is None or score > best[0]:

@@ -264,22 +264,8 @@ def _choosing_order(
     in its object's diameters, :func:`_second_miss`; None: none would take another), one that
     would take none counting as a miss at the ``gate``'s edge, and the nearer prediction first
     of equals. A track of one frame does not go first beside a longer one that would find no
-    other blob. The others of them keep their own places.
-
-    Two objects following one path: the lead's streak came out a shred, and the lead's track,
-    the longer by a frame, took the trailing object's blob, which its size outweighed the shred
-    by, though the trail's own prediction lay on it; the tracks swapped objects there. A track of
-    one frame, though, only guesses which way it goes: falling_pen.avi's pen streak came in two
-    pieces, the second started a track, and its guess, nearer the next frame's blob, took it
-    from the pen's, which had no other. But falling_three.mp4's objects side by side, frame 11:
-    the pale end's track of one frame lay on its blob, the red end's track, whose guess had
-    drifted, would have taken it though the red end's own blob lay in its gate too. And two
-    objects on one path two frames apart, cold: each track's guess at one direction landed on the
-    trail's blob, the lead's nearer, though the lead's other guess lay on its own blob; the
-    nearer first, the tracks swapped objects. A track losing its object costs no more than the
-    gate, though: a slow mover's track, its guess 4.3 diameters off, would have taken a fast
-    object's blob because it had no other.
-    """
+    other blob. The others of them keep their own places (the cases behind each rule:
+    ``benchmarks/RESULTS.md``, several objects)."""
 
     miss = [_miss_diameters(found, w) for _, w in wants]
     # A track that would take no blob is a group of its own.
@@ -313,10 +299,7 @@ def _goes_elsewhere(
     """Whether a track whose ``wanted`` blob another track took first takes the best blob left
     (``rest``, :func:`follow`) rather than share the taken one: where ``rest`` lands nearer its
     prediction (the other only passed near: the lead's shred, the trail's blob where the lead
-    was), or no track wants it first (``first_choices``) and a guess that is no fallback found it
-    (falling_three's frame 13: the pale end's guess lagged between the red end's streak and its
-    own, and it shared the red end's; but the 3D guess of the object that landed in the bowl,
-    its blob shared with the grey object's, reached the pale end's)."""
+    was), or no track wants it first (``first_choices``) and a guess that is no fallback found it."""
     if rest is None:
         return False
     nearer = _miss(found, rest[0][0], rest[2]) < _miss(found, wanted[0][0], wanted[2])
@@ -455,14 +438,13 @@ class Tracker:
             # A second guess from the image: the last streak moved on at the pace of the last
             # two. One frame's fit is unsure of its speed (a longer object moving less blurs
             # alike) and a falling object gathers speed; follow keeps the guess whose blob lands
-            # nearer (falling_two: the 3D guess lagged one object by 88 px, and took the other).
+            # nearer.
             glided = self._glided(index)
             last = predict(self.previous.state.motion, self.camera).centre
             if self._clean_pace() and lags(predicted[0][0], glided, last, self.config):
                 # The two guesses part: the image pace from two whole streaks is the surer, and
-                # the lagging 3D guess would land on whatever lies behind (falling_three frame
-                # 13: the grey object's lagged onto the red end's streak and took it). It is
-                # still followed where the pace finds nothing: an object that landed stops.
+                # the lagging 3D guess would land on whatever lies behind. It is still followed
+                # where the pace finds nothing: an object that landed stops.
                 three_d, option = predicted[0]
                 return [(glided, self.previous), (dataclasses.replace(three_d, fallback=True), option)]
             predicted.append((glided, self.previous))
@@ -470,8 +452,7 @@ class Tracker:
 
     def _clean_pace(self) -> bool:
         """Whether the image pace (:meth:`_glided`) comes from two whole streaks: neither box
-        touches the frame's edge (falling_three frame 9: a streak cut off there, its pace is
-        the cut's, not the object's)."""
+        touches the frame's edge (a streak cut off there paces the cut, not the object)."""
         assert self.previous is not None and self.earlier is not None
         return not (
             _at_edge(self.previous.detection_box, self.camera) or _at_edge(self.earlier.detection_box, self.camera)
@@ -546,9 +527,8 @@ def _new_objects(found: FrameBlobs, taken: set[int], config: Config, alone: bool
     """The labels of the blobs no track took that are objects of their own, largest first.
 
     Beside another track (when ``alone``, no track live, every blob but the largest; otherwise
-    every one), a blob must also be an object of its own by :meth:`FrameBlobs.own_object`:
-    with every mover tracked, circle_fast.avi's arm and the ball's shadow on the wall started
-    twelve tracks beside the ball's, which took the ball's blob from it in turn."""
+    every one), a blob must also be an object of its own by :meth:`FrameBlobs.own_object` (not
+    an arm's shred, not a shadow)."""
     areas = [found.area(k) for k in range(1, found.count)]
     floor = max(config.detect.min_area_px, config.track.other_share * max(areas, default=0.0))
     fresh = [k for k in range(1, found.count) if k not in taken and found.area(k) >= floor]
@@ -721,13 +701,9 @@ def _on_its_streak(found: FrameBlobs, claim: _Claim, free: set[int]) -> list[int
     (:func:`~sfb_video.stages.detect.side_by_side`), among the ``free`` blobs (no track took them
     or wants them first, and no object of its own, :func:`_new_objects`), that lie on its track's
     predicted streak rather than beside it: their centres within half its object's diameter of
-    the line along the predicted motion through its blob's.
-
-    The slow-beside scenario's pen (``benchmarks.multi_object``), frame 7: its thin streak came
-    in two cores end to end, 3 px apart across, split as two objects; its track took one, and
-    its fit covered half the streak. An object beside another starts its own track even where it
-    lies in the other's predicted streak: the predicted diameters of young tracks run large
-    (falling_three.mp4's, 37 to 56 px, for streaks 15 px wide and 18 to 28 px apart)."""
+    the line along the predicted motion through its blob's (a thin streak split in two cores end
+    to end). An object beside another still starts its own track where it lies in the other's
+    predicted streak: young tracks' predicted diameters run large."""
     prediction = claim.prediction
     if found.joined is None or claim.part is not None or prediction is None or prediction.ends is None:
         return []
@@ -754,13 +730,8 @@ def _shared(
     track's claim, the others' narrowed to their own parts. None where it cannot be shared (one
     of them has no prediction, or a part would be too small), or where ``tracker`` or one of
     them is a track of one frame, which only guesses its direction: then the track takes the
-    best blob left, or coasts through the frame (a track of one frame ends). falling_three's
-    frame 10: the red end's track, begun on its streak cut off at the frame's edge, took the
-    lower half of the pale end's blob by a wrong guess, and the pale end was fitted on the
-    upper half.
-
-    Three at once: the slow-beside scenario's pen merges into the blob that the first and second
-    objects already share (``benchmarks.multi_object``)."""
+    best blob left, or coasts through the frame (a track of one frame ends). Three or more tracks
+    may share one blob."""
     (label, _), _, prediction = crossing
     first = [c for c in claims if c.label == label]
     if tracker.length < 2 or any(c.tracker.length < 2 for c in first):

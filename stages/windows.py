@@ -120,9 +120,9 @@ def others_region(
     other's streak passes across this one's, a hole in it would cost the fit more than the
     other's streak does. But a fitted path's capsule is as wide as the object's furthest vertex,
     often far wider than its streak, and a poor single-frame fit's runs on past its streak: it
-    can hold a neighbour's streak whole (falling_three's frame 11: the window took the
-    neighbours in and drew the three as one smear). So where neither streak touched another's,
-    the overlap is this object's only inside its blob's box (its streak lies there), and there,
+    can hold a neighbour's streak whole (the window would draw both as one smear). So where
+    neither streak touched another's, the overlap is this object's only inside its blob's box (its
+    streak lies there), and there,
     for a neighbour that runs beside its path and lies within it (:meth:`ObjectPath.beside`),
     only the pixels nearer its own centre's path; and the neighbour's box outside this one's is
     the neighbour's, where its fit's path does not cover its streak. Not where two streaks touch
