@@ -10,8 +10,6 @@ file is written atomically.
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -22,18 +20,14 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from sfb_video.atomic import atomic_write_bytes
 from sfb_video.config import Config
 from sfb_video.crop import Box
 from sfb_video.geometry.camera import PinholeCamera
-from sfb_video.geometry.rotation import matrix_to_axis_angle
 from sfb_video.imageio import as_float
 from sfb_video.mesh_files import motion_record, write_glb, write_obj
-from sfb_video.model.formation import exposure_times
 from sfb_video.model.scene import ObjectState
-from sfb_video.model.trajectory import Trajectory
 from sfb_video.recording import Recorder
-from sfb_video.registration import to_frame, unwarp
+from sfb_video.registration import unwarp
 from sfb_video.results import FrameKey, FrameResult
 from sfb_video.run_folder import (
     BEST_MESH,
@@ -46,6 +40,7 @@ from sfb_video.run_folder import (
 from sfb_video.stages.composite import BLUR_POSES, explained, fitted_region, region_box
 from sfb_video.stages.detect import difference_image, threshold_difference
 from sfb_video.stages.run_results import RunResults, with_joint
+from sfb_video.stages.trajectory import gap_rows, to_frame_pixels, trajectory_rows
 from sfb_video.stages.types import FrameWithBackground, Registered
 from sfb_video.video import OUTPUT_PRESET, VideoWriter
 
@@ -312,103 +307,6 @@ def composite(
     return reconstruction, Pasted(frame.pixels, layers)
 
 
-def trajectory_rows(
-    result: FrameResult, camera: PinholeCamera, n: int, fps: float, exposure_fraction: float, diameter: float | None
-) -> Iterator[dict[str, float | int | str]]:
-    """One CSV row per sub-frame of a fitted frame, at the sub-frame's mid-time
-    (``in_exposure`` 1).
-
-    Positions are in the camera frame (x right, y down, z forward) in object sizes, and in metres
-    when the object's ``diameter`` (metres) is known; the rotation is the object's orientation as
-    an axis-angle vector in degrees.
-    """
-    motion = result.state.motion
-    taus = exposure_times(n)
-    rotations, positions = motion.at(taus)
-    uv, _ = camera.project(positions)
-    exposure_s = exposure_fraction / fps
-    speed = float(motion.dx.norm()) / exposure_s
-    spin = math.degrees(float(motion.omega.norm())) / exposure_s
-    axis_angles = torch.rad2deg(matrix_to_axis_angle(rotations))
-    times = (result.index + taus * exposure_fraction) / fps
-    yield from _rows(result.index, 1, times, uv, positions, axis_angles, [speed] * n, spin, diameter)
-
-
-def gap_rows(
-    trajectory: Trajectory, index: int, camera: PinholeCamera, n: int, fps: float, diameter: float | None
-) -> Iterator[dict[str, float | int | str]]:
-    """``n`` CSV rows (``in_exposure`` 0) on a joint trajectory between the end of frame
-    ``index``'s exposure and the start of the next, evenly spaced in time."""
-    e = trajectory.exposure_fraction
-    k = torch.arange(n, dtype=torch.float32)
-    t = trajectory.time(index) + e + (k + 0.5) / n * (1 - e)
-    positions, rotations = trajectory.positions(t), trajectory.rotations(t)
-    uv, _ = camera.project(positions)
-    speed = (trajectory.speed(t) * fps).tolist()
-    spin = math.degrees(float(trajectory.spin.norm())) * fps
-    axis_angles = torch.rad2deg(matrix_to_axis_angle(rotations))
-    times = (t + trajectory.first_frame) / fps
-    yield from _rows(index, 0, times, uv, positions, axis_angles, speed, spin, diameter)
-
-
-def _rows(
-    index: int,
-    in_exposure: int,
-    times: torch.Tensor,
-    uv: torch.Tensor,
-    positions: torch.Tensor,
-    axis_angles: torch.Tensor,
-    speeds: list[float],
-    spin: float,
-    diameter: float | None,
-) -> Iterator[dict[str, float | int | str]]:
-    for k in range(times.shape[0]):
-        row: dict[str, float | int | str] = {
-            "frame": index,
-            "subframe": k,
-            "in_exposure": in_exposure,
-            "time_s": float(times[k]),
-            "u_px": float(uv[k, 0]),
-            "v_px": float(uv[k, 1]),
-            "x": float(positions[k, 0]),
-            "y": float(positions[k, 1]),
-            "z": float(positions[k, 2]),
-            "speed_sizes_per_s": speeds[k],
-            "rot_x_deg": float(axis_angles[k, 0]),
-            "rot_y_deg": float(axis_angles[k, 1]),
-            "rot_z_deg": float(axis_angles[k, 2]),
-            "spin_deg_per_s": spin,
-        }
-        if diameter is not None:
-            row.update(
-                x_m=row["x"] * diameter,
-                y_m=row["y"] * diameter,
-                z_m=row["z"] * diameter,
-                speed_m_per_s=speeds[k] * diameter,
-                speed_km_per_h=speeds[k] * diameter * 3.6,
-            )
-        yield row
-
-
-def _to_frame(rows: list[dict[str, float | int | str]], to_canvas: np.ndarray) -> None:
-    """Move the rows' image positions from the canvas's pixels into the frame's own (the 3D
-    positions stay in the reference camera)."""
-    uv = torch.tensor([[float(r["u_px"]), float(r["v_px"])] for r in rows], dtype=torch.float64)
-    for row, (u, v) in zip(rows, to_frame(uv, to_canvas).tolist(), strict=True):
-        row["u_px"], row["v_px"] = u, v
-
-
-def write_csv(path: Path, rows: list[dict[str, float | int | str]]) -> None:
-    """Write ``rows`` (dicts sharing keys) as CSV, atomically; floats with 6 significant digits."""
-    buffer = io.StringIO()
-    names = list(rows[0]) if rows else ["frame"]
-    writer = csv.DictWriter(buffer, fieldnames=names, lineterminator="\n")
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({k: f"{v:.6g}" if isinstance(v, float) else v for k, v in row.items()})
-    atomic_write_bytes(path, buffer.getvalue().encode())
-
-
 @dataclass
 class Exported:
     """What streaming the clip through the exports gathered.
@@ -454,6 +352,95 @@ def _fit_record(result: FrameResult, speed: float, diameter: float | None) -> di
     return record
 
 
+@dataclass(frozen=True)
+class ObjectRecord:
+    """One fitted object of a frame as the exports show it: its fit (a window's joint fit where
+    one stands for it), its rendering, its trajectory rows (with its track and reference frame,
+    in the frame's own pixels) and what ``summary.json`` says of it."""
+
+    result: FrameResult
+    rendered: Rendered
+    rows: tuple[dict[str, float | int | str], ...]
+    summary: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One frame of the exports: the frame, its difference ``mask`` and detected ``boxes`` (by
+    track), its fitted objects, the reconstruction (the fitted objects blurred over the
+    background; the frame where none), its composited sub-frames and the N frames ``tsr.mp4``
+    shows of it (``filmed``)."""
+
+    frame: FrameWithBackground
+    mask: torch.Tensor
+    boxes: dict[int, Box]
+    objects: tuple[ObjectRecord, ...]
+    reconstruction: torch.Tensor
+    subframes: Sequence[torch.Tensor]
+    filmed: Sequence[torch.Tensor]
+
+
+def frame_records(
+    frames: Iterator[FrameWithBackground],
+    results: RunResults,
+    camera: PinholeCamera,
+    fps: float,
+    n: int,
+    config: Config,
+    diameter: float | None,
+) -> Iterator[FrameRecord]:
+    """One :class:`FrameRecord` per frame of the clip, each object's saved fit (and its window's)
+    loaded only while its frame is made, so memory does not grow with the clip."""
+    for frame in frames:
+        difference = difference_image(frame.pixels, frame.background_pixels)
+        mask = threshold_difference(difference, config.detect, frame.known)
+        present = results.saved(frame.index)
+        boxes = {s.track: s.box for s, _ in present if s.box is not None}
+        if not present:
+            yield FrameRecord(frame, mask, boxes, (), frame.pixels, [frame.pixels], [unfitted(frame, config)] * n)
+            continue
+        objects = tuple(
+            _object_record(frame, single, results, difference, camera, fps, n, config, diameter)
+            for _, single in present
+        )
+        reconstruction, subframes = composite(frame, [(o.result, o.rendered) for o in objects], camera, n, config)
+        yield FrameRecord(frame, mask, boxes, objects, reconstruction, subframes, as_filmed(frame, subframes, config))
+
+
+def _object_record(
+    frame: FrameWithBackground,
+    single: FrameResult,
+    results: RunResults,
+    difference: np.ndarray,
+    camera: PinholeCamera,
+    fps: float,
+    n: int,
+    config: Config,
+    diameter: float | None,
+) -> ObjectRecord:
+    owner = results.shown_window(single.key)
+    window = None if owner is None else results.window(owner)
+    result = single if window is None else with_joint(single, window)
+    rendered = render_frame(frame, result, camera, n, config, difference)
+    rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
+    record = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)
+    record["explained"] = rendered.explained
+    record["object_box"] = result.state.image_box(camera)
+    if window is not None:
+        record.update(window=window.frames[0], losses_before=single.losses, prototype_before=single.prototype)
+        # The gap to the next frame is drawn where the next frame is shown from a window too,
+        # not from its single-frame fit (its window rejected).
+        later = FrameKey(frame.index + 1, result.track)
+        if frame.index + 1 in window.result.losses and results.shown_window(later) is not None:
+            rows += gap_rows(window.result.trajectory, frame.index, camera, n, fps, diameter)
+    if mapped_back(frame, config):
+        assert frame.registered is not None and frame.registered.to_canvas is not None
+        to_frame_pixels(rows, frame.registered.to_canvas)
+    reference = 0 if frame.registered is None else frame.registered.segment
+    rows = [{"track": result.track, "reference": reference, **r} for r in rows]
+    return ObjectRecord(result, rendered, tuple(rows), record)
+
+
 def export_frames(
     folder: Path,
     frames: Iterator[FrameWithBackground],
@@ -466,73 +453,33 @@ def export_frames(
     diameter: float | None,
     recorder: Recorder,
 ) -> Exported:
-    """Stream the clip once and write ``tsr.mp4`` (of ``size`` (width, height); N sub-frames
-    per fitted frame, every object of the frame in them; the frame N times otherwise),
-    ``meshes/frame_XXXXX_track_YY.glb`` and one ``meshes/track_YY.glb`` per track (its lowest-L_I
-    frame's mesh), and log every frame to ``recorder``, loading each object's saved result (and
-    its window's joint fit) only while it is needed, so memory does not grow with the clip."""
+    """Stream the clip once (:func:`frame_records`) and write ``tsr.mp4`` (of ``size`` (width,
+    height); N sub-frames per fitted frame, every object of the frame in them; the frame N times
+    otherwise), ``meshes/frame_XXXXX_track_YY.glb`` and one ``meshes/track_YY.glb`` per track (its
+    lowest-L_I frame's mesh), and log every frame to ``recorder``."""
     done = Exported()
     trajectory: dict[int, list[np.ndarray]] = {}
-    best_loss = math.inf
     tracks: dict[int, tuple[float, ObjectState]] = {}
     ensure_folder(folder / MESHES)
     with VideoWriter(folder / TSR_VIDEO, fps * n, *size, preset=OUTPUT_PRESET) as video:
-        for frame in frames:
-            recorder.log_frame(frame.index, frame.pixels, frame.background_pixels)
-            difference = difference_image(frame.pixels, frame.background_pixels)
-            mask = threshold_difference(difference, config.detect, frame.known)
-            present = results.saved(frame.index)
-            boxes = {s.track: s.box for s, _ in present if s.box is not None}
-            recorder.log_detection(frame.index, boxes, mask)
-            if not present:
-                for _ in range(n):
-                    video.write(unfitted(frame, config))
-                recorder.log_subframes(frame.index, frame.pixels, [frame.pixels])
-                continue
-            objects = []
-            for _, single in present:
-                owner = results.shown_window(single.key)
-                window = None if owner is None else results.window(owner)
-                result = single if window is None else with_joint(single, window)
-                rendered = render_frame(frame, result, camera, n, config, difference)
-                objects.append((result, rendered))
-                recorder.log_fit(frame.index, result.track, result.state, result.losses, result.curve)
-                recorder.log_quality(frame.index, result.track, rendered.explained)
-                order = _mask_order(result)
-                source = result.mask_source if order is None else f"{result.mask_source}, order {order}"
-                recorder.log_masks(frame.index, source, result.crop_box, result.masks, result.track)
-                write_glb(result.state, mesh_path(folder, frame.index, result.track))
-                rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
-                record = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)
-                record["explained"] = rendered.explained
-                record["object_box"] = result.state.image_box(camera)
-                if window is not None:
-                    record.update(
-                        window=window.frames[0], losses_before=single.losses, prototype_before=single.prototype
-                    )
-                    # The gap to the next frame is drawn where the next frame is shown from a
-                    # window too, not from its single-frame fit (its window rejected).
-                    later = FrameKey(frame.index + 1, result.track)
-                    if frame.index + 1 in window.result.losses and results.shown_window(later) is not None:
-                        rows += gap_rows(window.result.trajectory, frame.index, camera, n, fps, diameter)
-                if mapped_back(frame, config):
-                    assert frame.registered is not None and frame.registered.to_canvas is not None
-                    _to_frame(rows, frame.registered.to_canvas)
+        for record in frame_records(frames, results, camera, fps, n, config, diameter):
+            _log_frame(recorder, record)
+            for obj in record.objects:
+                result = obj.result
+                write_glb(result.state, mesh_path(folder, record.frame.index, result.track))
                 points = trajectory.setdefault(result.track, [])
-                points.append(np.array([[r["x"], r["y"], r["z"]] for r in rows], dtype=np.float32))
+                points.append(np.array([[r["x"], r["y"], r["z"]] for r in obj.rows], dtype=np.float32))
                 recorder.log_trajectory(np.concatenate(points), result.track)
-                reference = 0 if frame.registered is None else frame.registered.segment
-                done.rows += [{"track": result.track, "reference": reference, **r} for r in rows]
-                done.fits[result.key] = record
-                if result.losses["image"] < best_loss:
-                    best_loss, done.best = result.losses["image"], result.key
-                if result.losses["image"] < tracks.get(result.track, (math.inf,))[0]:
-                    tracks[result.track] = (result.losses["image"], result.state)
-            reconstruction, subframes = composite(frame, objects, camera, n, config)
-            filmed = as_filmed(frame, subframes, config)
-            for sub in filmed:
+                done.rows += obj.rows
+                done.fits[result.key] = obj.summary
+                loss = result.losses["image"]
+                if done.best is None or loss < done.fits[done.best]["losses"]["image"]:
+                    done.best = result.key
+                if loss < tracks.get(result.track, (math.inf,))[0]:
+                    tracks[result.track] = (loss, result.state)
+            for sub in record.filmed:
                 video.write(sub)
-            recorder.log_subframes(frame.index, reconstruction, subframes)
+            recorder.log_subframes(record.frame.index, record.reconstruction, record.subframes)
         done.video_frames = video.frames_written
     for track, (_, state) in tracks.items():
         write_glb(state, track_mesh_path(folder, track))
@@ -540,3 +487,17 @@ def export_frames(
         best = results.shown(done.best)
         write_obj(best.state, ensure_folder(folder / BEST_MESH), name="mesh")
     return done
+
+
+def _log_frame(recorder: Recorder, record: FrameRecord) -> None:
+    """The frame, its detections and each fitted object's fit, quality and masks, to ``recorder``."""
+    index = record.frame.index
+    recorder.log_frame(index, record.frame.pixels, record.frame.background_pixels)
+    recorder.log_detection(index, record.boxes, record.mask)
+    for obj in record.objects:
+        result = obj.result
+        recorder.log_fit(index, result.track, result.state, result.losses, result.curve)
+        recorder.log_quality(index, result.track, obj.rendered.explained)
+        order = _mask_order(result)
+        source = result.mask_source if order is None else f"{result.mask_source}, order {order}"
+        recorder.log_masks(index, source, result.crop_box, result.masks, result.track)

@@ -40,12 +40,13 @@ from sfb_video.run_folder import (
     saved_frames,
 )
 from sfb_video.stages.background import frames_read, with_backgrounds
-from sfb_video.stages.export import Exported, export_frames, write_csv
+from sfb_video.stages.export import Exported, export_frames
 from sfb_video.stages.masks import MaskSource, choose_masks, print_line
 from sfb_video.stages.read import check_video, probe, select_frames
 from sfb_video.stages.register import camera_motion
 from sfb_video.stages.run_results import FolderSource, RunResults, read_run, write_statuses
 from sfb_video.stages.track import track_and_fit
+from sfb_video.stages.trajectory import write_csv
 from sfb_video.stages.types import FrameStatus, Status
 from sfb_video.stages.windows import fit_windows
 from sfb_video.timing import timed
