@@ -194,7 +194,7 @@ class SavedWindow:
     """The joint fit of one window of a track, as the run folder keeps it.
 
     Attributes:
-        track: the track's number (:class:`sfb_video.stages.track.FrameStatus`).
+        track: the track's number (:class:`sfb_video.stages.types.FrameStatus`).
         result: the joint fit; its ``losses`` name the window's frames.
         before: per frame of the window, the loss terms of its single-frame fit (the seed).
         explained: per frame, how much of its difference from the background the single-frame

@@ -32,10 +32,12 @@ from sfb_video.evaluation.datasets import BenchmarkFrame
 from sfb_video.evaluation.scoring import render_estimate, score_estimate
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.results import FrameKey, FrameResult
+from sfb_video.stages.detect import box_blobs
 from sfb_video.stages.fit import fit_detection
 from sfb_video.stages.masks import MaskSource
 from sfb_video.stages.run_results import MemorySource, RunResults
-from sfb_video.stages.track import Tracker, follow_box
+from sfb_video.stages.tracking.matching import match_tracks
+from sfb_video.stages.tracking.tracker import Tracker
 from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground, Status
 from sfb_video.stages.windows import fit_track_window, window_frame
 from sfb_video.synth import SyntheticClip
@@ -75,7 +77,7 @@ class FrameRow:
     mesh_err: float = math.nan
     prototype: str = ""
     track: int | None = None
-    """The frame's track (the pipeline's tracker: :class:`~sfb_video.stages.track.Tracker`), in
+    """The frame's track (the pipeline's tracker: :class:`~sfb_video.stages.tracking.tracker.Tracker`), in
     the video and joint modes."""
 
     @property
@@ -225,10 +227,12 @@ def run_sequence(
         if mode != "per-frame":
             # The pipeline's tracker decides the tracks, on the box the benchmark hands over.
             tracker = tracker or Tracker(camera, config)
-            detection, followed = follow_box(inputs, frame.box, tracker.predictions(frame.index), config)
-            _reoriented(fitted, tracker.found(followed))
+            found = box_blobs(inputs, frame.box, config.detect)
+            matched = match_tracks(found, [(tracker, tracker.predictions(frame.index))], config)
+            for first in matched.directed:
+                _reoriented(fitted, first)
             warm = tracker.previous if config.video.warm_start else None
-            colour = detection.colour
+            colour = found.colour(1) if found.count > 1 else None
         start = time.perf_counter()
         try:
             earlier = None if tracker is None else tracker.earlier

@@ -16,7 +16,7 @@ from sfb_video.results import load_results
 from sfb_video.stages.process import ProcessOptions, clip_camera, process_clip
 from sfb_video.stages.read import probe
 from sfb_video.stages.run_results import read_run
-from sfb_video.stages.track import join_gap, predict, ray_gap
+from sfb_video.stages.tracking.prediction import join_gap, predict, ray_gap
 from sfb_video.synth import ClipSpec, generate_clip
 
 CPU = torch.device("cpu")

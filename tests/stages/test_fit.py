@@ -14,7 +14,7 @@ from sfb_video.geometry.rotation import axis_angle_to_matrix, rotation_angle_deg
 from sfb_video.model.motion import Motion, continue_motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.results import FrameResult, load_result, save_result
-from sfb_video.stages.track import join, join_gap, predict, ray_gap
+from sfb_video.stages.tracking.prediction import join, join_gap, predict, ray_gap
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
 

@@ -17,7 +17,7 @@ from sfb_video.evaluation.synthetic import crop_masks
 from sfb_video.results import FrameResult
 from sfb_video.stages.fit import fit_detection
 from sfb_video.stages.masks import MaskSource, choose_masks, mask_centroids, orient_masks
-from sfb_video.stages.track import join
+from sfb_video.stages.tracking.prediction import join
 from sfb_video.stages.types import Detection, FrameWithBackground
 from sfb_video.synth import SyntheticClip
 

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 import torch
 
-import sfb_video.stages.track
 from benchmarks import detect as detect_benchmark
 from sfb_video.config import load_config
 from sfb_video.crop import crop_box
@@ -27,27 +26,18 @@ from sfb_video.stages.background import running_median
 from sfb_video.stages.detect import FrameBlobs, frame_blobs, share_out
 from sfb_video.stages.fit import continued
 from sfb_video.stages.frame_buffer import FrameBuffer
-from sfb_video.stages.track import (
-    Tracker,
-    TrackNumbers,
-    _choosing_order,
-    _Claim,
-    _goes_elsewhere,
-    _Held,
-    _HeldFit,
-    _look_back,
-    _new_objects,
-    _on_its_streak,
-    _proven,
-    _shared,
+from sfb_video.stages.track import track_and_fit, with_neighbours
+from sfb_video.stages.tracking.look_back import Held, HeldFit, held_region, look_back_into, proven_length
+from sfb_video.stages.tracking.matching import (
+    Claim,
+    choosing_order,
     follow,
-    glide,
-    held_region,
-    predict,
-    short_tracks_dropped,
-    track_and_fit,
-    with_neighbours,
+    goes_elsewhere,
+    on_its_streak,
+    share_claim,
 )
+from sfb_video.stages.tracking.prediction import glide, predict
+from sfb_video.stages.tracking.tracker import Tracker, TrackNumbers, new_objects, short_tracks_dropped
 from sfb_video.stages.types import Frame, FrameStatus, FrameWithBackground, Prediction, Registered
 from sfb_video.synth import generate_clip
 
@@ -240,36 +230,36 @@ def test_a_track_of_one_frame_chooses_after_a_longer_one_that_would_take_its_blo
     last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
     far, near = Prediction((30.0, 30.0), 10.0), Prediction((30.0, 17.0), 10.0)
     wants = [(piece, ((1, 0), last, near)), (pen, ((1, 0), last, far))]
-    assert _choosing_order(found, wants, gate=config.detect.gate) == [1, 0]
-    assert _choosing_order(found, wants, [math.inf, math.inf], gate=config.detect.gate) == [1, 0]
+    assert choosing_order(found, wants, gate=config.detect.gate) == [1, 0]
+    assert choosing_order(found, wants, [math.inf, math.inf], gate=config.detect.gate) == [1, 0]
     # But where the longer track would find another blob, the nearer guess chooses first:
     # falling_three.mp4's red end's track, its guess drifted, took the pale end's blob from the
     # pale end's new track, though the red end's own blob lay in its gate.
-    assert _choosing_order(found, wants, [math.inf, 0.5], gate=config.detect.gate) == [0, 1]
+    assert choosing_order(found, wants, [math.inf, 0.5], gate=config.detect.gate) == [0, 1]
     # With a third, longer track that has another blob too, in either order: the track of one
     # frame still comes after the pen, which has no other blob; and the pen, far though its
     # guess lands, before the nearer third, which has another blob.
     other = Tracker(CAMERA, config)
     piece.length, other.length = 1, 3
     three = [(pen, ((1, 0), last, far)), (other, ((1, 0), last, Prediction((30.0, 22.0), 10.0))), wants[0]]
-    assert _choosing_order(found, three, [math.inf, 0.5, 0.5], gate=config.detect.gate) == [0, 1, 2]
-    assert _choosing_order(found, three[::-1], [0.5, 0.5, math.inf], gate=config.detect.gate) == [2, 1, 0]
+    assert choosing_order(found, three, [math.inf, 0.5, 0.5], gate=config.detect.gate) == [0, 1, 2]
+    assert choosing_order(found, three[::-1], [0.5, 0.5, math.inf], gate=config.detect.gate) == [2, 1, 0]
     # Of tracks that know their direction, and would both find another blob as near or neither
     # would, the nearer prediction chooses first, however long: two objects on one path.
     piece.length = 2
-    assert _choosing_order(found, wants, gate=config.detect.gate) == [0, 1]
-    assert _choosing_order(found, wants, [0.5, 0.5], gate=config.detect.gate) == [0, 1]
+    assert choosing_order(found, wants, gate=config.detect.gate) == [0, 1]
+    assert choosing_order(found, wants, [0.5, 0.5], gate=config.detect.gate) == [0, 1]
     # Unless the farther one's going first lands both nearer their blobs: two objects on one
     # path two frames apart, cold, where the lead's guess at one direction lay on the trail's
     # blob, nearer than the trail's own guess, and its other guess on its own blob.
-    assert _choosing_order(found, wants, [0.1, 3.0], gate=config.detect.gate) == [1, 0]
+    assert choosing_order(found, wants, [0.1, 3.0], gate=config.detect.gate) == [1, 0]
     # As long as each other: the one chosen goes first though its guess lands farther.
     pen.length = 2
-    assert _choosing_order(found, wants, [0.1, 3.0], gate=config.detect.gate) == [1, 0]
+    assert choosing_order(found, wants, [0.1, 3.0], gate=config.detect.gate) == [1, 0]
     pen.length = 5
     # A track that would find no other blob costs a miss at the gate's edge, no more: a slow
     # mover's track, its guess far off, does not take a fast object's blob for having no other.
-    assert _choosing_order(found, wants, [3.0, math.inf], gate=4.0) == [0, 1]
+    assert choosing_order(found, wants, [3.0, math.inf], gate=4.0) == [0, 1]
 
 
 def test_a_track_whose_blob_was_taken_goes_to_a_blob_left_that_is_nearer_or_no_track_wants() -> None:
@@ -284,15 +274,15 @@ def test_a_track_whose_blob_was_taken_goes_to_a_blob_left_that_is_nearer_or_no_t
     last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
     guess = Prediction((20.0, 25.0), 10.0)  # 15 px from the taken streak, 20 from the other
     wanted, rest = ((taken, 0), last, guess), ((left, 0), last, guess)
-    assert _goes_elsewhere(found, wanted, rest, {taken})  # no track wants the other first
-    assert not _goes_elsewhere(found, wanted, rest, {taken, left})  # another track's: share
-    assert not _goes_elsewhere(found, wanted, None, {taken})
+    assert goes_elsewhere(found, wanted, rest, {taken})  # no track wants the other first
+    assert not goes_elsewhere(found, wanted, rest, {taken, left})  # another track's: share
+    assert not goes_elsewhere(found, wanted, None, {taken})
     # But not where only a fallback guess reaches it: the object that landed in the bowl.
     fallback = ((left, 0), last, dataclasses.replace(guess, fallback=True))
-    assert not _goes_elsewhere(found, wanted, fallback, {taken})
+    assert not goes_elsewhere(found, wanted, fallback, {taken})
     # A blob left that lands nearer goes, wanted or not: the other track only passed near.
     nearer = ((left, 0), last, Prediction((20.0, 40.0), 10.0))
-    assert _goes_elsewhere(found, wanted, nearer, {taken, left})
+    assert goes_elsewhere(found, wanted, nearer, {taken, left})
 
 
 def test_a_piece_of_a_track_s_streak_split_off_as_an_object_beside_it_is_joined_back() -> None:
@@ -307,13 +297,13 @@ def test_a_piece_of_a_track_s_streak_split_off_as_an_object_beside_it_is_joined_
     mine, on, beside = by_x[17], by_x[33], by_x[19]
     found = FrameBlobs(count, labels, stats, centroids, joined=np.array([0, mine, mine, mine]))
     prediction = Prediction((25.0, 13.0), 9.0, ends=((40.0, 14.0), (10.0, 12.0)))
-    claim = _Claim(Tracker(CAMERA, load_config("fast")), mine, 0, prediction)
-    assert _on_its_streak(found, claim, {on, beside}) == [on]
-    assert _on_its_streak(found, claim, {beside}) == []  # another track took it or wants it
-    assert _on_its_streak(dataclasses.replace(found, joined=None), claim, {on, beside}) == []
+    claim = Claim(Tracker(CAMERA, load_config("fast")), mine, 0, prediction)
+    assert on_its_streak(found, claim, {on, beside}) == [on]
+    assert on_its_streak(found, claim, {beside}) == []  # another track took it or wants it
+    assert on_its_streak(dataclasses.replace(found, joined=None), claim, {on, beside}) == []
     # A claim on a part of a shared blob, or with no prediction, takes nothing back.
-    assert _on_its_streak(found, dataclasses.replace(claim, part=labels == mine), {on, beside}) == []
-    assert _on_its_streak(found, dataclasses.replace(claim, prediction=None), {on, beside}) == []
+    assert on_its_streak(found, dataclasses.replace(claim, part=labels == mine), {on, beside}) == []
+    assert on_its_streak(found, dataclasses.replace(claim, prediction=None), {on, beside}) == []
     found.merge(mine, [on])
     assert tuple(found.stats[mine]) == (10, 10, 30, 7, 60 + 52) and found.area(on) == 0
     assert not (found.labels == on).any()
@@ -344,8 +334,8 @@ def test_beside_a_tracked_object_only_objects_of_their_own_start_tracks() -> Non
     box = {k: tuple(int(v) for v in found.stats[k, :4]) for k in range(1, found.count)}
     label = {b: k for k, b in box.items()}
     # No track yet: the largest blob starts one whatever it is, as with one object tracked.
-    assert [box[k] for k in _new_objects(found, set(), config, alone=True)] == [shadow, ball, other]
-    assert [box[k] for k in _new_objects(found, {label[ball]}, config, alone=False)] == [other]
+    assert [box[k] for k in new_objects(found, set(), config, alone=True)] == [shadow, ball, other]
+    assert [box[k] for k in new_objects(found, {label[ball]}, config, alone=False)] == [other]
 
 
 def test_a_blob_three_streaks_touch_in_is_shared_out_among_all_three() -> None:
@@ -359,16 +349,16 @@ def test_a_blob_three_streaks_touch_in_is_shared_out_among_all_three() -> None:
     first, second, third = (Tracker(CAMERA, config) for _ in range(3))
     first.length = second.length = third.length = 2
     last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
-    claims = [_Claim(first, 1, 0, streaks[0])]
+    claims = [Claim(first, 1, 0, streaks[0])]
     # A track of one frame only guesses its direction: it shares no blob (falling_three frame
     # 10: the red end's track took the lower half of the pale end's streak so).
-    assert _shared(found, ((1, 0), last, streaks[1]), claims, Tracker(CAMERA, config), config) is None
+    assert share_claim(found, ((1, 0), last, streaks[1]), claims, Tracker(CAMERA, config), config) is None
     first.length = 1  # nor with one: its part would be a guess too
-    assert _shared(found, ((1, 0), last, streaks[1]), claims, second, config) is None
+    assert share_claim(found, ((1, 0), last, streaks[1]), claims, second, config) is None
     first.length = 2
     assert claims[0].part is None and not claims[0].shared_with
-    claims.append(_shared(found, ((1, 0), last, streaks[1]), claims, second, config))
-    shared = _shared(found, ((1, 0), last, streaks[2]), claims, third, config)
+    claims.append(share_claim(found, ((1, 0), last, streaks[1]), claims, second, config))
+    shared = share_claim(found, ((1, 0), last, streaks[2]), claims, third, config)
     assert shared is not None
     claims.append(shared)
     parts = [c.part for c in claims]
@@ -409,14 +399,12 @@ def _disc_blob(shape: tuple[int, int], centres: list[tuple[float, float]], radiu
     return np.any([(u - x) ** 2 + (v - y) ** 2 <= radius**2 for x, y in centres], axis=0)
 
 
-def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(tmp_path: Path) -> None:
     # A shred or a second track of one object, moving beside a tracked object, slid back onto
     # that object's whole blob and split it: only a blob larger than its track's own of the next
     # frame, by about the looking track's object, holds that object too.
     config = load_config("fast")
-    assert _proven(config) == 3 and _proven(load_config("fast", ["video.min_track_frames=1"])) == 2
+    assert proven_length(config) == 3 and proven_length(load_config("fast", ["video.min_track_frames=1"])) == 2
     numbers = TrackNumbers()
     owner, late = Tracker(CAMERA, config, numbers), Tracker(CAMERA, config, numbers)
     owner.number, late.number = 0, 1
@@ -432,12 +420,12 @@ def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(
     mine = _disc_blob(shape, [predict(first.state.motion, CAMERA).centre], 8.0)
     empty = torch.zeros((3, *shape))
 
-    def held(index: int, blob: np.ndarray, fits: list[_HeldFit]) -> list[_Held]:
-        return [_Held(index, shape, (0, 0, shape[1], shape[0]), empty, empty, blob, fits)]
+    def held(index: int, blob: np.ndarray, fits: list[HeldFit]) -> list[Held]:
+        return [Held(index, shape, (0, 0, shape[1], shape[0]), empty, empty, blob, fits)]
 
-    def owner_fit(at: tuple[float, float]) -> _HeldFit:
+    def owner_fit(at: tuple[float, float]) -> HeldFit:
         ahead = Prediction(at, 36.0, None, ((at[0] - 5, at[1]), (at[0] + 5, at[1])))
-        return _HeldFit(owner, 0, ahead, None, None, None)
+        return HeldFit(owner, 0, ahead, None, None, None)
 
     fitted: list[int] = []
 
@@ -445,7 +433,6 @@ def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(
         fitted.append(frame.index)
         raise NoObjectError("stop here")  # the look back gives up on the frame
 
-    monkeypatch.setattr(sfb_video.stages.track, "fit_detection", fit)
     near = (back.centre[0] + 4.0, back.centre[1])
     for discs, at, looked in (
         ([back.centre], near, []),  # the owner's own object on the path: its blob no larger
@@ -454,12 +441,12 @@ def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(
         frames = [
             held(1, _disc_blob(shape, discs, 12.0), [owner_fit(at)]),
             held(2, _disc_blob(shape, [aside], 12.0), [owner_fit(aside)])
-            + held(2, mine, [_HeldFit(late, 1, None, None, None, None)]),
+            + held(2, mine, [HeldFit(late, 1, None, None, None, None)]),
             held(3, np.zeros(shape, bool), []),
         ]
         fitted.clear()
         buffer = FrameBuffer(tmp_path)
-        _look_back(late, frames, buffer, set(), CAMERA, config, CPU, None)
+        look_back_into(late, frames, buffer, set(), CAMERA, config, fit)
         assert fitted == looked  # refitted (and given up) only where the blob grew by the object
         assert buffer.close() == []  # nothing restated
     assert late.length == 3 and saved_frames(tmp_path) == {(2, 1), (4, 1)}
