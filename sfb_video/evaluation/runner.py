@@ -229,8 +229,8 @@ def run_sequence(
             tracker = tracker or Tracker(camera, config)
             found = box_blobs(inputs, frame.box, config.detect)
             matched = match_tracks(found, [(tracker, tracker.predictions(frame.index))], config)
-            for first in matched.directed:
-                _reoriented(fitted, first)
+            for reversed_first in matched.directed:
+                _reoriented(fitted, reversed_first)
             warm = tracker.previous if config.video.warm_start else None
             colour = found.colour(1) if found.count > 1 else None
         start = time.perf_counter()
