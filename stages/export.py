@@ -39,7 +39,7 @@ from sfb_video.run_folder import (
 )
 from sfb_video.stages.composite import BLUR_POSES, explained, fitted_region, region_box
 from sfb_video.stages.detect import difference_image, threshold_difference
-from sfb_video.stages.run_results import RunResults, with_joint
+from sfb_video.stages.run_results import RunResults
 from sfb_video.stages.trajectory import gap_rows, to_frame_pixels, trajectory_rows
 from sfb_video.stages.types import FrameWithBackground, Registered
 from sfb_video.video import OUTPUT_PRESET, VideoWriter
@@ -418,9 +418,7 @@ def _object_record(
     config: Config,
     diameter: float | None,
 ) -> ObjectRecord:
-    owner = results.shown_window(single.key)
-    window = None if owner is None else results.window(owner)
-    result = single if window is None else with_joint(single, window)
+    result, window = results.showing(single.key, single)
     rendered = render_frame(frame, result, camera, n, config, difference)
     rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
     record = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)

@@ -19,13 +19,11 @@ from typing import Protocol
 
 from sfb_video.atomic import write_json
 from sfb_video.config import JointConfig
-from sfb_video.crop import box_union
+from sfb_video.crop import Box, box_union
 from sfb_video.errors import SfbError
 from sfb_video.results import FrameKey, FrameResult, SavedWindow, WindowKey, load_result, load_window
 from sfb_video.run_folder import DETECTIONS, MARKER
 from sfb_video.stages.types import FrameStatus, Status, Window
-
-Box = tuple[int, int, int, int]
 
 
 def write_statuses(folder: Path, statuses: Sequence[FrameStatus]) -> None:
@@ -187,6 +185,10 @@ class ResultSource(Protocol):
         """The window's joint fit, or None where none was saved (its fit diverged)."""
         ...
 
+    def add_window(self, key: WindowKey, window: SavedWindow) -> None:
+        """A window just fitted (and saved, for a folder): asked for next, it is not read again."""
+        ...
+
 
 class FolderSource:
     """The fits saved in a run folder, loaded when asked; one window per track is kept, as the
@@ -194,21 +196,24 @@ class FolderSource:
 
     def __init__(self, folder: Path) -> None:
         self.folder = folder
-        self._loaded: dict[int, SavedWindow] = {}
+        self._loaded: dict[int, tuple[WindowKey, SavedWindow]] = {}  # by track
 
     def single(self, key: FrameKey) -> FrameResult | None:
         path = key.path(self.folder)
         return load_result(path) if path.is_file() else None
 
     def window(self, key: WindowKey) -> SavedWindow | None:
-        window = self._loaded.get(key.track)
-        if window is not None and window.key == key:
-            return window
+        loaded = self._loaded.get(key.track)
+        if loaded is not None and loaded[0] == key:
+            return loaded[1]
         path = key.path(self.folder)
         if not path.is_file():
             return None
-        window = self._loaded[key.track] = load_window(path)
-        return window
+        self.add_window(key, load_window(path))
+        return self._loaded[key.track][1]
+
+    def add_window(self, key: WindowKey, window: SavedWindow) -> None:
+        self._loaded[key.track] = (key, window)
 
 
 class MemorySource:
@@ -224,8 +229,8 @@ class MemorySource:
     def window(self, key: WindowKey) -> SavedWindow | None:
         return self.windows.get(key)
 
-    def add_window(self, window: SavedWindow) -> None:
-        self.windows[window.key] = window
+    def add_window(self, key: WindowKey, window: SavedWindow) -> None:
+        self.windows[key] = window
 
 
 class RunResults:
@@ -306,18 +311,28 @@ class RunResults:
         """The frames whose outputs ``window``'s joint fit shows."""
         return [i for i in window.frames if self.shown_window(FrameKey(i, window.track)) == window.key]
 
-    def single(self, key: FrameKey) -> FrameResult | None:
-        """The object's single-frame fit, or None where none was saved."""
-        return self.source.single(key)
+    def single(self, key: FrameKey) -> FrameResult:
+        """The object's single-frame fit.
 
-    def shown(self, key: FrameKey, single: FrameResult | None = None) -> FrameResult:
-        """The object as its outputs show it; ``single``: its single-frame fit, if already loaded."""
-        single = single if single is not None else self.source.single(key)
+        Raises:
+            SfbError: none was saved.
+        """
+        single = self.source.single(key)
         if single is None:
             raise SfbError(f"the fit of track {key.track} in frame {key.index} is missing from the run")
+        return single
+
+    def showing(self, key: FrameKey, single: FrameResult | None = None) -> tuple[FrameResult, SavedWindow | None]:
+        """The object as its outputs show it, and the window whose joint fit that is (None: its
+        single-frame fit); ``single``: its single-frame fit, if already loaded."""
+        single = single if single is not None else self.single(key)
         owner = self.shown_window(key)
         window = None if owner is None else self.source.window(owner)
-        return single if window is None else with_joint(single, window)
+        return (single, None) if window is None else (with_joint(single, window), window)
+
+    def shown(self, key: FrameKey, single: FrameResult | None = None) -> FrameResult:
+        """The object as its outputs show it (:meth:`showing`)."""
+        return self.showing(key, single)[0]
 
     def final(self) -> dict[FrameKey, FrameResult]:
         """Every object fitted and saved (its track not dropped), as its outputs show it."""

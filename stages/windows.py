@@ -30,7 +30,7 @@ import torch
 
 from sfb_video.config import Config
 from sfb_video.crop import Box, box_mask, make_crop, masks_onto
-from sfb_video.errors import DivergenceError, SfbError
+from sfb_video.errors import DivergenceError
 from sfb_video.fitting.path import Seed
 from sfb_video.fitting.window import WindowFrame, fit_window, refine_frames
 from sfb_video.geometry.camera import PinholeCamera
@@ -240,7 +240,8 @@ def fit_windows(
     Returns:
         every window's fit, in frame order (a window whose fit diverged is left out).
     """
-    pending = [w for w in results.windows if results.window(w.key) is None]
+    done = {w.key: saved for w in results.windows if (saved := results.window(w.key)) is not None}
+    pending = [w for w in results.windows if w.key not in done]
     touched = results.holding
     crops: dict[FrameKey, WindowFrame] = {}
     needed: dict[int, set[int]] = {}  # frame index -> the tracks whose crops it gives
@@ -252,7 +253,7 @@ def fit_windows(
     for frame in frames if pending else ():
         keys = [FrameKey(frame.index, t) for t in sorted(needed.get(frame.index, ()))]
         fitted = results.fitted(frame.index) if keys else []
-        singles = {key.track: _single(results, key) for key, _ in fitted}
+        singles = {key.track: results.single(key) for key, _ in fitted}
         # A touched object's crop holds its whole blob (its box a part of it may be a sliver).
         boxes = {key.track: results.blobs.get(key, s.box) for key, s in fitted}
         own_boxes = {t: box for t, box in boxes.items() if box is not None}
@@ -273,7 +274,7 @@ def fit_windows(
                     window.track,
                     members,
                     {i: crops[FrameKey(i, window.track)] for i in members},
-                    lambda i, t=window.track: _single(results, FrameKey(i, t)),
+                    lambda i, t=window.track: results.single(FrameKey(i, t)),
                     results.previous(window),
                     camera,
                     config,
@@ -285,6 +286,8 @@ def fit_windows(
                 print(f"joint fit of frames {members[0]}-{members[-1]} skipped: {exc}", file=sys.stderr)
             else:
                 save_window(folder, saved)
+                results.source.add_window(window.key, saved)  # the next window's predecessor: not read again
+                done[window.key] = saved
                 if report is not None:
                     report(saved)
         if ready:
@@ -292,11 +295,4 @@ def fit_windows(
             crops = {k: c for k, c in crops.items() if k in keep}
         if not pending:
             break
-    return [saved for w in results.windows if (saved := results.window(w.key)) is not None]
-
-
-def _single(results: RunResults, key: FrameKey) -> FrameResult:
-    single = results.single(key)
-    if single is None:
-        raise SfbError(f"the fit of track {key.track} in frame {key.index} is missing from the run")
-    return single
+    return [done[w.key] for w in results.windows if w.key in done]

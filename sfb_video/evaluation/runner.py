@@ -333,16 +333,15 @@ def _joint_rows(
             # Left out, as the pipeline leaves it out: its frames keep their single-frame fits.
             print(f"{sequence.name}: joint fit of frames {members[0]}-{members[-1]} skipped: {exc}", file=sys.stderr)
         else:
-            source.add_window(saved)
+            source.add_window(window.key, saved)
         for i in members:
             seconds[i] += (time.perf_counter() - started) / len(members)
     rows = list(unfitted)
     for index, (frame, result, _) in sorted(fitted.items()):
-        owner = results.shown_window(keys[index])
-        result = results.shown(keys[index], result)
+        result, window = results.showing(keys[index], result)
         estimate = estimate_subframes(result, frame, camera, config)
         scores = score_frame(frame, result, estimate, camera, clip)
-        start = "joint" if owner is not None else result.start
+        start = "joint" if window is not None else result.start
         row = FrameRow(
             sequence.dataset,
             sequence.name,

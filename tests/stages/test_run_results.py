@@ -16,6 +16,7 @@ from sfb_video.results import FrameKey, SavedWindow, WindowKey
 from sfb_video.run_folder import DETECTIONS, MARKER
 from sfb_video.stages import run_results
 from sfb_video.stages.run_results import (
+    FolderSource,
     RunResults,
     frame_windows,
     read_run,
@@ -48,6 +49,9 @@ class _Source:
 
     def window(self, key: WindowKey) -> object | None:
         return self.windows.get(key)
+
+    def add_window(self, key: WindowKey, window: object) -> None:
+        self.windows[key] = window
 
 
 def _window(track: int, frames: range, accepted: bool = True, explained: dict | None = None) -> SavedWindow:
@@ -161,6 +165,20 @@ def test_each_object_is_read_back_as_the_export_shows_it(monkeypatch: pytest.Mon
     assert shown[:3] == [(FrameKey(i, 0), 0) for i in range(3)]
     assert shown[3:5] == [FrameKey(3, 0), FrameKey(4, 0)]
     assert shown[5:] == [(FrameKey(i, 0), 4) for i in range(5, 8)]
+    every = RunResults(statuses, source, JointConfig(window=4, overlap=2))  # type: ignore[arg-type]
+    assert every.showing(FrameKey(1, 0)) == ((FrameKey(1, 0), 0), windows[WindowKey(0, 0)])
+    assert every.showing(FrameKey(3, 0)) == (FrameKey(3, 0), None)
+    with pytest.raises(SfbError, match="track 2 in frame 7 is missing from the run"):
+        every.shown(FrameKey(7, 2))
+
+
+def test_a_folder_keeps_the_window_just_fitted_and_reads_each_other_one_when_asked(tmp_path: Path) -> None:
+    source = FolderSource(tmp_path)
+    assert source.window(WindowKey(0, 0)) is None  # not saved: its fit diverged
+    fitted = _window(0, range(4))
+    source.add_window(WindowKey(0, 0), fitted)
+    assert source.window(WindowKey(0, 0)) is fitted  # not read back from the folder
+    assert source.window(WindowKey(0, 2)) is None and source.window(WindowKey(1, 0)) is None
 
 
 def test_a_dropped_track_gives_its_share_of_a_blob_back() -> None:

@@ -41,6 +41,9 @@ class _Saved:
     def window(self, key: object) -> None:
         return None
 
+    def add_window(self, key: object, window: object) -> None:
+        pass
+
 
 def _results(statuses: list[FrameStatus], config: Config, source: object | None = None) -> RunResults:
     return RunResults(statuses, source or _Saved(), config.joint)  # type: ignore[arg-type]
