@@ -267,7 +267,8 @@ def _with_new_tracks(
     piece of a streak split off beside it that no track wants and is no object of its own; and
     how many objects of their own were left untracked (``video.max_objects``)."""
     fresh = new_objects(found, matched.taken, config, alone=not live)
-    free = {k for k in range(1, found.count) if k not in matched.taken | matched.wanted and k not in fresh}
+    claimed = matched.taken | matched.wanted | set(fresh)
+    free = {k for k in range(1, found.count) if k not in claimed}
     for claim in matched.claims:
         if pieces := on_its_streak(found, claim, free):
             found.merge(claim.label, pieces)
