@@ -436,6 +436,18 @@ class TrackConfig(_Checked):
     """A track's colour is this share its own and the rest its latest blob's."""
     other_share: float = bounded(0.1, gt=0, le=1)
     """A blob no track takes starts a track only from this share of the frame's largest blob."""
+    share_cost: float = bounded(0.7, ge=0)
+    """What a track pays on top of a blob's cost to share it with another track that takes it: as
+    much as a miss of one object diameter (``log 2``). A track goes to a blob left in its gate
+    rather than share where that costs less; a track does not leave its own blob for a far one
+    so that another need not share it."""
+    fallback_cost: float = bounded(50.0, ge=0)
+    """What a track pays on top of a blob's cost where only a fallback guess reaches it: above
+    sharing a blob, so that it follows a fallback guess only where nothing else is left."""
+    young_coast_cost: float = bounded(0.7, ge=0)
+    """What a track of one frame (its direction a guess) pays to take no blob in the contest for
+    the blobs, where a track of two frames or more pays a miss at the gate's edge: as much as a
+    miss of one object diameter (``log 2``). It gives its blob up to a longer track with no other."""
     look_back: int = bounded(2, ge=0)
     """Frames a newly proven track looks back for its object inside other tracks' blobs."""
     look_back_share: float = bounded(0.5, gt=0, le=1)

@@ -607,50 +607,55 @@ def box_blobs(frame: FrameWithBackground, box: Box, config: DetectConfig) -> Fra
     return FrameBlobs(2, labels, stats, centroids, pixels, config=config)
 
 
-def pick_blob(
-    found: FrameBlobs, prediction: Prediction | None, config: DetectConfig, taken: frozenset[int] = frozenset()
-) -> tuple[int, int] | None:
-    """The label of the FMO among ``found``'s blobs but the ``taken`` ones (another track's), and
-    how many other blobs could have been it (at least a quarter of its area, within the
-    prediction's gate), or None.
-
-    Without a ``prediction`` the largest blob; with one, the blobs within its gate
-    (:func:`gate_distance`) weighed by area, nearness and the track's colour, a shade
-    (:func:`is_shade`) ``shade_penalty`` times less.
-    """
-    best: tuple[float, int] | None = None
-    candidates: list[int] = []
-    for label in range(1, found.count):
-        if label in taken:
-            continue
-        area = found.area(label)
-        if prediction is None and area < config.min_area_px:
-            continue
-        score = area
-        if prediction is not None:
-            w, h = (int(v) for v in found.stats[label, 2:4])
-            centre = (float(found.centroids[label][0]), float(found.centroids[label][1]))
-            distance = gate_distance(prediction, centre, (w, h), area, config)
-            if distance is None:
-                continue
-            # Nearness alone would pick a speck or a shred of a slow mover next to a poor
-            # prediction over the real streak a little further away; size counts too.
-            score = area / (1 + (distance / max(prediction.diameter, 1.0)) ** 2)
-            colour = found.colour(label)
-            if prediction.colour is not None and colour is not None:
-                # A shred of an arm or a shadow of the wall near a poor prediction is another
-                # colour than the track's object.
-                score /= 1 + (math.dist(colour, prediction.colour) / config.colour_scale) ** 2
-            if found.shade(label):
-                # A shadow can lie nearer a poor prediction than the object, and as near its colour.
-                score /= config.shade_penalty
-        candidates.append(label)
-        if best is None or score > best[0]:
-            best = (score, label)
-    if best is None:
+def blob_cost(found: FrameBlobs, label: int, prediction: Prediction, config: DetectConfig) -> float | None:
+    """What it costs to take blob ``label`` for the object ``prediction`` foresees, or None
+    outside its gate (:func:`gate_distance`): the miss ``m`` in the object's diameters as
+    ``log(1 + m**2)``, plus ``log`` of how many times smaller than the frame's largest blob it is,
+    of ``1 + (d / colour_scale)**2`` for a colour ``d`` off the prediction's, and of
+    ``shade_penalty`` for a shade (:meth:`FrameBlobs.shade`). Nearness alone would pick a speck or
+    a shred of a slow mover next to a poor prediction over the real streak a little further
+    away, or an arm's shred or a wall's shadow near it over the object's own colour."""
+    area = found.area(label)
+    w, h = (int(v) for v in found.stats[label, 2:4])
+    centre = (float(found.centroids[label][0]), float(found.centroids[label][1]))
+    distance = gate_distance(prediction, centre, (w, h), area, config)
+    if distance is None:
         return None
-    label = best[1]
-    return label, sum(k != label and found.area(k) >= found.area(label) / 4 for k in candidates)
+    largest = max(found.area(k) for k in range(1, found.count))
+    cost = math.log1p((distance / max(prediction.diameter, 1.0)) ** 2) + math.log(largest / area)
+    colour = found.colour(label)
+    if prediction.colour is not None and colour is not None:
+        cost += math.log1p((math.dist(colour, prediction.colour) / config.colour_scale) ** 2)
+    if found.shade(label):
+        cost += math.log(config.shade_penalty)
+    return cost
+
+
+def rivals(found: FrameBlobs, label: int, prediction: Prediction, config: DetectConfig) -> int:
+    """How many other blobs within ``prediction``'s gate could have been blob ``label``'s object:
+    those at least a quarter of its area."""
+    quarter = found.area(label) / 4
+    return sum(
+        k != label and found.area(k) >= quarter and blob_cost(found, k, prediction, config) is not None
+        for k in range(1, found.count)
+    )
+
+
+def pick_blob(found: FrameBlobs, prediction: Prediction | None, config: DetectConfig) -> tuple[int, int] | None:
+    """The label of the FMO among ``found``'s blobs, and how many other blobs could have been it
+    (:func:`rivals`), or None: without a ``prediction`` the largest blob of ``min_area_px`` or
+    more; with one, the blob of least :func:`blob_cost`."""
+    if prediction is None:
+        sized = [k for k in range(1, found.count) if found.area(k) >= config.min_area_px]
+        if not sized:
+            return None
+        label = max(sized, key=lambda k: (found.area(k), -k))
+        return label, sum(k != label and found.area(k) >= found.area(label) / 4 for k in sized)
+    costs = {k: c for k in range(1, found.count) if (c := blob_cost(found, k, prediction, config)) is not None}
+    if not costs:
+        return None
+    label = min(costs, key=lambda k: (costs[k], k))
+    return label, rivals(found, label, prediction, config)
 
 
 def choose_blob(

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from sfb_video.config import Config
+from sfb_video.config import CameraConfig, Config, RenderConfig
 from sfb_video.crop import Box
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.imageio import as_float
@@ -134,25 +134,25 @@ class Unwarped(Sequence[torch.Tensor]):
         return blended.round_().to(torch.uint8) if original.dtype == torch.uint8 else blended
 
 
-def mapped_back(frame: FrameWithBackground, config: Config) -> bool:
+def mapped_back(frame: FrameWithBackground, camera: CameraConfig) -> bool:
     """Whether the outputs show ``frame`` as filmed, mapped back from its reference's pixels
     (a registered frame, unless ``camera.stabilised``)."""
-    return not (frame.registered is None or frame.registered.failed or config.camera.stabilised)
+    return not (frame.registered is None or frame.registered.failed or camera.stabilised)
 
 
-def as_filmed(frame: FrameWithBackground, subframes: Pasted, config: Config) -> Sequence[torch.Tensor]:
+def as_filmed(frame: FrameWithBackground, subframes: Pasted, camera: CameraConfig) -> Sequence[torch.Tensor]:
     """The sub-frames ``tsr.mp4`` shows: in the frame as filmed, or for a still camera (or
     ``camera.stabilised``) as rendered."""
-    if not mapped_back(frame, config):
+    if not mapped_back(frame, camera):
         return subframes
     assert frame.registered is not None
     return Unwarped(subframes, frame.registered)
 
 
-def unfitted(frame: FrameWithBackground, config: Config) -> torch.Tensor:
+def unfitted(frame: FrameWithBackground, camera: CameraConfig) -> torch.Tensor:
     """What ``tsr.mp4`` shows of a frame without a fit: the frame as filmed, or stabilised (a
     frame that did not register shows its reference's background there)."""
-    if frame.registered is None or config.camera.stabilised:
+    if frame.registered is None or camera.stabilised:
         return frame.pixels
     return frame.registered.original
 
@@ -204,10 +204,10 @@ def streak_box(result: FrameResult, camera: PinholeCamera) -> Box:
     return x0, y0, x1 - x0, y1 - y0
 
 
-def _export_size(box: Box, config: Config) -> tuple[int, int]:
+def _export_size(box: Box, render: RenderConfig) -> tuple[int, int]:
     """The (width, height) a region ``box`` is rendered at: at most ``render.export_max_width``."""
     _, _, w, h = box
-    scale = min(1.0, config.render.export_max_width / w)
+    scale = min(1.0, render.export_max_width / w)
     return max(1, round(w * scale)), max(1, round(h * scale))
 
 
@@ -220,7 +220,7 @@ def render_patches(
     A box wider than ``render.export_max_width`` is rendered at that width and the object scaled
     up onto it; the background keeps its own pixels."""
     x, y, w, h = box
-    size = _export_size(box, config)
+    size = _export_size(box, config.render)
     small_bg = _resize(background, size)
     patches = state.render_subframes(camera.crop(x, y, w, h, *size), small_bg, n, config.render)
     if size != (w, h):
@@ -258,7 +258,7 @@ def render_frame(
     if n * config.render.steps_per_subframe < BLUR_POSES:
         # Few sub-frames average into a few sharp copies, not the frame's blur: the quality
         # signal would depend on the TSR factor.
-        size = _export_size(box, config)
+        size = _export_size(box, config.render)
         small_bg = _resize(patch_bg, size)
         camera_box = camera.crop(x, y, w, h, *size)
         blurred = patch_bg + _resize(
@@ -397,14 +397,18 @@ def frame_records(
         present = results.saved(frame.index)
         boxes = {s.track: s.box for s, _ in present if s.box is not None}
         if not present:
-            yield FrameRecord(frame, mask, boxes, (), frame.pixels, [frame.pixels], [unfitted(frame, config)] * n)
+            yield FrameRecord(
+                frame, mask, boxes, (), frame.pixels, [frame.pixels], [unfitted(frame, config.camera)] * n
+            )
             continue
         objects = tuple(
             _object_record(frame, single, results, difference, camera, fps, n, config, diameter)
             for _, single in present
         )
         reconstruction, subframes = composite(frame, [(o.result, o.rendered) for o in objects], camera, n, config)
-        yield FrameRecord(frame, mask, boxes, objects, reconstruction, subframes, as_filmed(frame, subframes, config))
+        yield FrameRecord(
+            frame, mask, boxes, objects, reconstruction, subframes, as_filmed(frame, subframes, config.camera)
+        )
 
 
 def _object_record(
@@ -431,7 +435,7 @@ def _object_record(
         later = FrameKey(frame.index + 1, result.track)
         if frame.index + 1 in window.result.losses and results.shown_window(later) is not None:
             rows += gap_rows(window.result.trajectory, frame.index, camera, n, fps, diameter)
-    if mapped_back(frame, config):
+    if mapped_back(frame, config.camera):
         assert frame.registered is not None and frame.registered.to_canvas is not None
         to_frame_pixels(rows, frame.registered.to_canvas)
     reference = 0 if frame.registered is None else frame.registered.segment

@@ -38,11 +38,12 @@ class FrameBuffer:
     """The recent frames of a run, each written into ``folder`` once nothing can change it.
 
     Args:
-        folder: the run folder.
+        folder: the run folder; None: nothing is written, each frame only reported (the
+            evaluation keeps its fits in memory).
         report: called with each object's final status and fit as its frame is written.
     """
 
-    def __init__(self, folder: Path, report: StepReport | None = None) -> None:
+    def __init__(self, folder: Path | None, report: StepReport | None = None) -> None:
         self.folder, self.report = folder, report
         self.statuses: list[FrameStatus] = []  # the frames written, in frame order
         self._frames: dict[int, list[Pending]] = {}  # in frame order
@@ -88,6 +89,8 @@ class FrameBuffer:
         pending = self._pending(key)
         if pending is not None:
             return pending.followed or pending.result
+        if self.folder is None:
+            return None
         path = key.path(self.folder)
         return load_followed(path) if path.is_file() else None
 
@@ -107,7 +110,7 @@ class FrameBuffer:
 
     def _write(self, index: int) -> None:
         for pending in self._frames.pop(index):
-            if pending.result is not None and not pending.saved:
+            if self.folder is not None and pending.result is not None and not pending.saved:
                 save_result(self.folder, pending.result, pending.followed)
             self.statuses.append(pending.status)
             if self.report is not None:

@@ -43,8 +43,9 @@ from sfb_video.stages.fit import fit_detection
 from sfb_video.stages.frame_buffer import FrameBuffer, Pending, StepReport
 from sfb_video.stages.masks import MaskSource
 from sfb_video.stages.register import mask_onto_next, segment_of, usable
+from sfb_video.stages.tracking.assignment import Matched, match_tracks
 from sfb_video.stages.tracking.look_back import Held, HeldFit, Refit, held_blobs, look_back_into, proven_length
-from sfb_video.stages.tracking.matching import Claim, Matched, match_tracks, on_its_streak
+from sfb_video.stages.tracking.splitting import Claim, on_its_streak
 from sfb_video.stages.tracking.tracker import Tracker, TrackNumbers, new_objects, short_tracks_dropped
 from sfb_video.stages.types import Detection, Frame, FrameStatus, FrameWithBackground, Status
 
@@ -129,6 +130,76 @@ def with_neighbours(
         yield emit()
 
 
+class Tracking:
+    """The tracks of one clip, frame after frame: the stage's step, which the evaluation takes too.
+
+    Each :meth:`step` hands over a frame's blobs: the tracks take theirs
+    (:func:`~sfb_video.stages.tracking.assignment.match_tracks`), the blobs left that are objects
+    of their own start tracks (at most ``video.max_objects`` live at once; 0: all), a piece of a
+    track's streak split off beside it goes back to it, each claim is fitted (``refit``; a fit
+    the run folder holds, ``saved``, is loaded), and a track fitted in enough frames to be kept
+    looks back for its object (:func:`~sfb_video.stages.tracking.look_back.look_back_into`). The
+    frames go into ``buffer`` and out of it once no later frame can change them.
+    """
+
+    def __init__(
+        self,
+        camera: PinholeCamera,
+        config: Config,
+        buffer: FrameBuffer,
+        refit: Refit,
+        saved: set[tuple[int, int]] | None = None,
+    ) -> None:
+        self.camera, self.config, self.buffer, self.refit = camera, config, buffer, refit
+        self.saved = saved or set()
+        self.held: deque[list[Held]] = deque(maxlen=config.track.look_back + proven_length(config.video) + 1)
+        self.numbers = TrackNumbers()
+        self.live: list[Tracker] = []
+        self.limit = config.video.max_objects or math.inf
+        # One track at a time: none starts beside another to look back.
+        self.looks_back = self.limit > 1 and config.track.look_back > 0
+
+    def restart(self) -> None:
+        """End every track: the next frames' positions are in other coordinates (a moving
+        camera's new reference frame), or a frame between did not register."""
+        self.live = []
+
+    def failed(self, index: int, note: str) -> None:
+        """Frame ``index`` could not be used (it did not register): every track ends there."""
+        self.restart()
+        self.buffer.add(index, [Pending(FrameStatus(index, Status.FAILED, note=note))])
+        self.buffer.write_before(index + 1 - len(self.held))
+
+    def step(self, frame: FrameWithBackground, found: FrameBlobs) -> None:
+        """Take frame ``frame``'s blobs ``found``: match, start, fit, look back, and write what
+        no later frame can change."""
+        config, buffer = self.config, self.buffer
+        matched = match_tracks(found, [(t, t.predictions(frame.index)) for t in self.live], config)
+        for first in matched.directed:
+            buffer.directed(first)  # a track's first frame, found to run the other way
+        self.live = [t for t in self.live if t.previous is not None]
+        new_track = functools.partial(Tracker, self.camera, config, self.numbers)
+        objects, untracked = _with_new_tracks(found, matched, self.live, self.limit, new_track, config)
+        note = f"{untracked} other moving object(s) seen, not tracked (video.max_objects)" if untracked else ""
+        merged = matched.merged
+        results, fits, proven = _fit_claims(frame, found, objects, merged, note, self.saved, buffer, self.refit, config)
+        self.live += [c.tracker for c in objects if c.tracker.previous is not None and c.tracker not in self.live]
+        owner = {c.label: c.tracker for c in objects}
+        for tracker, label in merged:
+            if tracker.previous is not None:
+                note = f"its streak merged into track {owner[label].number}'s"
+                results.append(Pending(FrameStatus(frame.index, Status.MERGED, None, note, tracker.number)))
+        buffer.add(frame.index, results or [Pending(FrameStatus(frame.index, Status.NO_OBJECT))])
+        if self.looks_back:
+            self.held.append(held_blobs(frame, found, fits, config.crop))
+        for tracker in proven:
+            look_back_into(tracker, list(self.held), buffer, self.saved, self.camera, config, self.refit)
+        # A frame may change while a track's look back can reach it (the frames ``held``), and a
+        # track's first frame until its second fixes its time direction.
+        opened = any(t.length == 1 and t.previous is not None and t.previous.index == frame.index for t in self.live)
+        buffer.write_before(frame.index + 1 - max(len(self.held), int(opened)))
+
+
 def track_and_fit(
     frames: Iterator[FrameWithBackground],
     folder: Path,
@@ -138,28 +209,15 @@ def track_and_fit(
     masks: MaskSource | None = None,
     report: StepReport | None = None,
 ) -> list[FrameStatus]:
-    """Detect and fit every object of every frame, writing each fit into the run ``folder`` once
-    no later frame can change it; fits already written there are reused.
-
-    Every fast mover has its own track (at most ``video.max_objects`` at once; 0: all): the
-    tracks take their blobs (:func:`~sfb_video.stages.tracking.matching.match_tracks`), the blobs
-    left that are objects of their own start tracks, a piece of a track's streak split off beside
-    it goes back to it, and a track fitted in enough frames to be kept looks back for its object
-    (:func:`~sfb_video.stages.tracking.look_back.look_back_into`). ``masks`` gives each fit its
-    sub-frame masks (None: the difference mask).
+    """Detect and fit every object of every frame (:class:`Tracking`), writing each fit into the
+    run ``folder`` once no later frame can change it; fits already written there are reused.
+    ``masks`` gives each fit its sub-frame masks (None: the difference mask).
 
     Returns:
         the status of every object of every frame read (one ``no_object`` status for a frame
-        without any), in frame order, then track order.
+        without any), in frame order, then track order; tracks fitted in fewer than
+        ``video.min_track_frames`` frames ``dropped``.
     """
-    saved = saved_frames(folder)
-    held: deque[list[Held]] = deque(maxlen=config.track.look_back + proven_length(config) + 1)
-    numbers = TrackNumbers()
-    live: list[Tracker] = []
-    limit = config.video.max_objects or math.inf
-    # One track at a time: none starts beside another to look back.
-    looks_back = limit > 1 and config.track.look_back > 0
-    buffer = FrameBuffer(folder, report)
 
     def refit(
         frame: FrameWithBackground, detection: Detection, start: FrameResult | None, earlier: FrameResult | None
@@ -167,42 +225,18 @@ def track_and_fit(
         # Looked up at each call: a test stands a fit of its own in for the stage's.
         return fit_detection(frame, detection, camera, config, start, device, masks, earlier)
 
+    tracking = Tracking(camera, config, FrameBuffer(folder, report), refit, saved_frames(folder))
     segment = 0
     for frame, mask, neighbours in with_neighbours(frames, config):
         if segment_of(frame) != segment:
-            # A new reference frame: the tracks' positions were in the last one's coordinates.
-            live, segment = [], segment_of(frame)
+            tracking.restart()
+            segment = segment_of(frame)
         if not usable(frame):
-            live = []
-            buffer.add(frame.index, [Pending(FrameStatus(frame.index, Status.FAILED, note=frame.registered.note))])
-            buffer.write_before(frame.index + 1 - len(held))
+            tracking.failed(frame.index, frame.registered.note)
             continue
         moving = moving_mask(mask, neighbours, config.detect)
-        found = frame_blobs(moving, config.detect, (frame.pixels, frame.background_pixels), mask)
-        matched = match_tracks(found, [(t, t.predictions(frame.index)) for t in live], config)
-        for first in matched.directed:
-            buffer.directed(first)  # a track's first frame, found to run the other way
-        live = [t for t in live if t.previous is not None]
-        new_track = functools.partial(Tracker, camera, config, numbers)
-        objects, untracked = _with_new_tracks(found, matched, live, limit, new_track, config)
-        note = f"{untracked} other moving object(s) seen, not tracked (video.max_objects)" if untracked else ""
-        results, fits, proven = _fit_claims(frame, found, objects, matched.merged, note, saved, buffer, refit, config)
-        live += [c.tracker for c in objects if c.tracker.previous is not None and c.tracker not in live]
-        owner = {c.label: c.tracker for c in objects}
-        for tracker, label in matched.merged:
-            if tracker.previous is not None:
-                note = f"its streak merged into track {owner[label].number}'s"
-                results.append(Pending(FrameStatus(frame.index, Status.MERGED, None, note, tracker.number)))
-        buffer.add(frame.index, results or [Pending(FrameStatus(frame.index, Status.NO_OBJECT))])
-        if looks_back:
-            held.append(held_blobs(frame, found, fits, config))
-        for tracker in proven:
-            look_back_into(tracker, list(held), buffer, saved, camera, config, refit)
-        # A frame may change while a track's look back can reach it (the frames ``held``), and a
-        # track's first frame until its second fixes its time direction.
-        opened = any(t.length == 1 and t.previous is not None and t.previous.index == frame.index for t in live)
-        buffer.write_before(frame.index + 1 - max(len(held), int(opened)))
-    return short_tracks_dropped(buffer.close(), config.video.min_track_frames)
+        tracking.step(frame, frame_blobs(moving, config.detect, (frame.pixels, frame.background_pixels), mask))
+    return short_tracks_dropped(tracking.buffer.close(), config.video.min_track_frames)
 
 
 def _fit_claims(
@@ -249,7 +283,7 @@ def _fit_claims(
         status = FrameStatus(frame.index, Status.FITTED, detection.box, text, track, shared)
         results.append(Pending(status, result, saved=result is loaded))
         fits.append((claim, HeldFit(tracker, track, claim.prediction, claim.part, start, before)))
-        if not shared and tracker.length == proven_length(config):
+        if not shared and tracker.length == proven_length(config.video):
             proven.append(tracker)
     return results, fits, proven
 

@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 import torch
 
-from sfb_video.config import Config
+from sfb_video.config import Config, CropConfig
 from sfb_video.crop import Box, box_mask, make_crop, masks_onto
 from sfb_video.errors import DivergenceError
 from sfb_video.fitting.path import Seed
@@ -48,18 +48,18 @@ def window_frame(
     box: tuple[int, int, int, int],
     result: FrameResult,
     camera: PinholeCamera,
-    config: Config,
+    crop: CropConfig,
     device: torch.device,
 ) -> WindowFrame:
     """The frame's crop around its detection ``box`` as its single-frame fit made it (the box's
     pixels stand for the detected blob), with the fit's sub-frame masks drawn on it."""
     blob = box_mask(box, frame.pixels.shape[1:])
     pixels, background = frame.pixels.to(device), frame.background_pixels.to(device)
-    crop = make_crop(pixels, background, box, camera, config.crop, blob.to(device))
+    made = make_crop(pixels, background, box, camera, crop, blob.to(device))
     masks = None if result.masks is None else result.masks.to(device)
-    if masks is not None and crop.box != result.crop_box:  # a touched frame's whole blob (run_results.shared_boxes)
-        masks = masks_onto(masks, result.crop_box, crop)
-    return WindowFrame(frame.index, crop, masks)
+    if masks is not None and made.box != result.crop_box:  # a touched frame's whole blob (run_results.shared_boxes)
+        masks = masks_onto(masks, result.crop_box, made)
+    return WindowFrame(frame.index, made, masks)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -264,7 +264,7 @@ def fit_windows(
             assert box is not None  # a fitted object has its detection
             # Several objects in the frame: the others show the background.
             seen = frame.without(others_region(key.track, paths, config.detect.parallel_deg, apart)) if paths else frame
-            crops[key] = window_frame(seen, box, singles[key.track], camera, config, device)
+            crops[key] = window_frame(seen, box, singles[key.track], camera, config.crop, device)
         ready = [w for w in pending if all(FrameKey(i, w.track) in crops for i in w.frames)]
         for window in ready:
             pending.remove(window)

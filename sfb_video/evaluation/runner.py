@@ -14,6 +14,8 @@ unscored frame keeps its initial 0.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import itertools
 import math
 import sys
 import time
@@ -34,11 +36,11 @@ from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.results import FrameKey, FrameResult
 from sfb_video.stages.detect import box_blobs
 from sfb_video.stages.fit import fit_detection
+from sfb_video.stages.frame_buffer import FrameBuffer
 from sfb_video.stages.masks import MaskSource
 from sfb_video.stages.run_results import MemorySource, RunResults
-from sfb_video.stages.tracking.matching import match_tracks
-from sfb_video.stages.tracking.tracker import Tracker
-from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground, Status
+from sfb_video.stages.track import Tracking
+from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground
 from sfb_video.stages.windows import fit_track_window, window_frame
 from sfb_video.synth import SyntheticClip
 
@@ -212,65 +214,63 @@ def run_sequence(
         config = dataclasses.replace(config, video=video)
     rows: list[FrameRow] = []
     fitted: dict[int, tuple[BenchmarkFrame, FrameResult, float]] = {}  # joint mode: scored at the end
-    statuses: list[FrameStatus] = []
-    tracker: Tracker | None = None
-    camera: PinholeCamera | None = None
-    for position, frame in enumerate(sequence.frames()):
-        if max_frames is not None and position >= max_frames:
-            break
-        if position < first:
-            continue
-        height, width = frame.image.shape[:2]
-        camera = clip.camera if clip is not None else PinholeCamera.from_fov(width, height, config.camera.fov_y_deg)
-        inputs = _inputs(frame)
-        warm, colour = None, None
-        if mode != "per-frame":
-            # The pipeline's tracker decides the tracks, on the box the benchmark hands over.
-            tracker = tracker or Tracker(camera, config)
-            found = box_blobs(inputs, frame.box, config.detect)
-            matched = match_tracks(found, [(tracker, tracker.predictions(frame.index))], config)
-            for reversed_first in matched.directed:
-                _reoriented(fitted, reversed_first)
-            warm = tracker.previous if config.video.warm_start else None
-            colour = found.colour(1) if found.count > 1 else None
-        start = time.perf_counter()
-        try:
-            earlier = None if tracker is None else tracker.earlier
-            result = fit_benchmark_frame(inputs, frame.box, camera, config, warm, device, masks, earlier)
-        except NoObjectError:
-            row = FrameRow(sequence.dataset, sequence.name, frame.index, mode, "no_object", 0.0, 0.0, 0.0, 0.0)
-            statuses.append(FrameStatus(frame.index, Status.NO_OBJECT))
-            if tracker is not None:
-                tracker.lose()
-        else:
-            seconds = time.perf_counter() - start
-            track = None
-            if tracker is not None:
-                track, result, reversed_previous = tracker.add(result, colour)
-                _reoriented(fitted, reversed_previous)
-            statuses.append(FrameStatus(frame.index, Status.FITTED, frame.box, track=track))
-            if mode == "joint":
-                fitted[frame.index] = (frame, result, seconds)
-            if mode == "joint" and not with_video:
-                continue
-            estimate = estimate_subframes(result, frame, camera, config)
-            scores = score_frame(frame, result, estimate, camera, clip)
-            row = FrameRow(
-                sequence.dataset,
-                sequence.name,
-                frame.index,
-                "video" if mode == "joint" else mode,
-                result.start,
-                seconds=seconds,
-                prototype=result.prototype,
-                track=track,
-                **scores,
-            )
-            if on_images is not None:
-                on_images(row, frame, estimate)
+    scored = functools.partial(_scored_row, sequence, config=config, clip=clip, on_images=on_images)
+
+    def emit(row: FrameRow) -> None:
         rows.append(row)
         if on_frame is not None:
             on_frame(row)
+
+    frames = itertools.islice(sequence.frames(), max_frames)
+    if mode == "per-frame":
+        for frame in itertools.islice(frames, first, None):
+            camera = _camera(frame, clip, config)
+            start = time.perf_counter()
+            try:
+                result = fit_benchmark_frame(_inputs(frame), frame.box, camera, config, None, device, masks)
+            except NoObjectError:
+                result = None
+            emit(scored(frame, mode, result, time.perf_counter() - start, camera))
+        return rows
+    # The pipeline's tracking step decides the tracks and warm starts, on the box the benchmark
+    # hands over as the frame's one blob; a frame is scored once no later frame can change it.
+    held: dict[int, BenchmarkFrame] = {}
+    seconds: dict[int, float] = {}
+    statuses: list[FrameStatus] = []
+    camera: PinholeCamera | None = None
+
+    def refit(
+        inputs: FrameWithBackground, detection: Detection, start: FrameResult | None, earlier: FrameResult | None
+    ) -> FrameResult:
+        assert camera is not None
+        began = time.perf_counter()
+        try:
+            return fit_benchmark_frame(inputs, detection.box, camera, config, start, device, masks, earlier)
+        finally:
+            seconds[inputs.index] = time.perf_counter() - began
+
+    def report(status: FrameStatus, result: FrameResult | None) -> None:
+        statuses.append(status)
+        frame = held.pop(status.index)
+        assert camera is not None
+        if result is None:  # no object: scored 0 in the mode asked
+            emit(scored(frame, mode, None, 0.0, camera))
+            return
+        if mode == "joint":
+            fitted[status.index] = (frame, result, seconds[status.index])
+        if mode == "video" or with_video:
+            emit(scored(frame, "video", result, seconds[status.index], camera))
+
+    one_at_a_time = dataclasses.replace(config, video=dataclasses.replace(config.video, max_objects=1))
+    tracking: Tracking | None = None
+    for frame in frames:
+        camera = _camera(frame, clip, config)
+        tracking = tracking or Tracking(camera, one_at_a_time, FrameBuffer(None, report), refit)
+        held[frame.index] = frame
+        inputs = _inputs(frame)
+        tracking.step(inputs, box_blobs(inputs, frame.box, config.detect))
+    if tracking is not None:
+        tracking.buffer.close()
     if mode != "joint" or camera is None:
         return rows
     video_rows = [r for r in rows if r.mode == "video"]
@@ -284,11 +284,44 @@ def run_sequence(
     return sorted(video_rows, key=lambda r: r.frame) + joint_rows
 
 
-def _reoriented(fitted: dict[int, tuple[BenchmarkFrame, FrameResult, float]], result: FrameResult | None) -> None:
-    """Keep the joint mode's fit of a frame that tracking reversed (None: nothing reversed)."""
-    if result is not None and result.index in fitted:
-        frame, _, seconds = fitted[result.index]
-        fitted[result.index] = (frame, result, seconds)
+def _camera(frame: BenchmarkFrame, clip: SyntheticClip | None, config: Config) -> PinholeCamera:
+    """The generator's camera where it is known, else one of the configured field of view."""
+    if clip is not None:
+        return clip.camera
+    height, width = frame.image.shape[:2]
+    return PinholeCamera.from_fov(width, height, config.camera.fov_y_deg)
+
+
+def _scored_row(
+    sequence: Sequence,
+    frame: BenchmarkFrame,
+    mode: str,
+    result: FrameResult | None,
+    seconds: float,
+    camera: PinholeCamera,
+    *,
+    config: Config,
+    clip: SyntheticClip | None,
+    on_images: ImageSink | None,
+) -> FrameRow:
+    """Frame ``frame``'s fit ``result`` scored as a row of ``mode`` (None: no object, all 0)."""
+    if result is None:
+        return FrameRow(sequence.dataset, sequence.name, frame.index, mode, "no_object", 0.0, 0.0, 0.0, 0.0)
+    estimate = estimate_subframes(result, frame, camera, config)
+    row = FrameRow(
+        sequence.dataset,
+        sequence.name,
+        frame.index,
+        mode,
+        result.start,
+        seconds=seconds,
+        prototype=result.prototype,
+        track=None if mode == "per-frame" else result.track,
+        **score_frame(frame, result, estimate, camera, clip),
+    )
+    if on_images is not None:
+        on_images(row, frame, estimate)
+    return row
 
 
 def _joint_rows(
@@ -316,7 +349,7 @@ def _joint_rows(
         crops = {}
         for i in members:
             frame, result, _ = fitted[i]
-            crops[i] = window_frame(_inputs(frame), frame.box, result, camera, config, device)
+            crops[i] = window_frame(_inputs(frame), frame.box, result, camera, config.crop, device)
         started = time.perf_counter()
         try:
             saved = fit_track_window(

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from sfb_video.config import Config, CropConfig
+from sfb_video.config import Config, CropConfig, VideoConfig
 from sfb_video.crop import Box, crop_box, mask_box
 from sfb_video.defmo import INPUT_SIZE
 from sfb_video.errors import NoObjectError
@@ -22,8 +22,8 @@ from sfb_video.stages.detect import (
     share_out,
 )
 from sfb_video.stages.frame_buffer import FrameBuffer
-from sfb_video.stages.tracking.matching import Claim
 from sfb_video.stages.tracking.prediction import glide, join, join_gap
+from sfb_video.stages.tracking.splitting import Claim
 from sfb_video.stages.tracking.tracker import Tracker
 from sfb_video.stages.types import Detection, FrameStatus, FrameWithBackground, Prediction, Status
 
@@ -97,14 +97,14 @@ def held_region(box: Box, frame_size: tuple[int, int], config: CropConfig) -> Bo
 
 
 def held_blobs(
-    frame: FrameWithBackground, found: FrameBlobs, fits: list[tuple[Claim, HeldFit]], config: Config
+    frame: FrameWithBackground, found: FrameBlobs, fits: list[tuple[Claim, HeldFit]], crop: CropConfig
 ) -> list[Held]:
     """The blobs that tracks took in ``frame``, with what :func:`look_back_into` needs of them."""
     shape = (int(frame.pixels.shape[1]), int(frame.pixels.shape[2]))
     held: list[Held] = []
     for label in dict.fromkeys(claim.label for claim, _ in fits):
         x, y, w, h = (int(v) for v in found.stats[label, :4])
-        rx, ry, rw, rh = region = held_region((x, y, w, h), (shape[1], shape[0]), config.crop)
+        rx, ry, rw, rh = region = held_region((x, y, w, h), (shape[1], shape[0]), crop)
         window = (slice(ry, ry + rh), slice(rx, rx + rw))
         blob = found.labels[window] == label
         kept = [
@@ -194,11 +194,11 @@ def look_back_into(
         later = results[-1]
 
 
-def proven_length(config: Config) -> int:
+def proven_length(video: VideoConfig) -> int:
     """The frames a track is fitted in before it looks back (:func:`look_back_into`): as many as a
     track needs to be kept (``video.min_track_frames``), at least two (its time direction
     known). A shred that would be dropped does not look back and split another's blob."""
-    return max(2, config.video.min_track_frames)
+    return max(2, video.min_track_frames)
 
 
 def _area(blob: Held, fit: HeldFit) -> float:

@@ -43,7 +43,7 @@ class Tracker:
 
     A frame continues the track when its object is found where the track's last frame, its
     motion continued across the gap (turning as it turned), predicts it
-    (:func:`~sfb_video.stages.tracking.matching.match_tracks`, also for a given box:
+    (:func:`~sfb_video.stages.tracking.assignment.match_tracks`, also for a given box:
     :func:`~sfb_video.stages.detect.box_blobs`); the frames then join end to start (:func:`join`),
     which fixes the time direction of a track's first frame. A frame that is not the next one,
     or has no object, ends the track, but for up to ``track.max_coast`` frames in which the

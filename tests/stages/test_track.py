@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from benchmarks import detect as detect_benchmark
-from sfb_video.config import load_config
+from sfb_video.config import Config, load_config
 from sfb_video.crop import crop_box
 from sfb_video.errors import NoObjectError
 from sfb_video.evaluation.objects import box_iou
@@ -27,18 +27,12 @@ from sfb_video.stages.detect import FrameBlobs, frame_blobs, share_out
 from sfb_video.stages.fit import continued
 from sfb_video.stages.frame_buffer import FrameBuffer
 from sfb_video.stages.track import track_and_fit, with_neighbours
+from sfb_video.stages.tracking.assignment import Matched, match_tracks
 from sfb_video.stages.tracking.look_back import Held, HeldFit, held_region, look_back_into, proven_length
-from sfb_video.stages.tracking.matching import (
-    Claim,
-    choosing_order,
-    follow,
-    goes_elsewhere,
-    on_its_streak,
-    share_claim,
-)
 from sfb_video.stages.tracking.prediction import glide, predict
+from sfb_video.stages.tracking.splitting import Claim, on_its_streak
 from sfb_video.stages.tracking.tracker import Tracker, TrackNumbers, new_objects, short_tracks_dropped
-from sfb_video.stages.types import Frame, FrameStatus, FrameWithBackground, Prediction, Registered
+from sfb_video.stages.types import Detection, Frame, FrameStatus, FrameWithBackground, Prediction, Registered
 from sfb_video.synth import generate_clip
 
 CAMERA = PinholeCamera.from_fov(320, 240, 45.0)
@@ -162,7 +156,7 @@ def test_a_track_goes_on_where_its_streak_moved_on_though_its_fits_lag_on_speed(
     )
     tracker.length, tracker.number = 2, 0
     continued_3d = predict(continued(tracker.previous, tracker.earlier, 2, config.video.exposure_fraction), CAMERA)
-    lagging, paced = continued_3d.centre, tracker._glided(2).centre
+    lagging, paced = continued_3d.centre, glide(tracker.previous, tracker.earlier, 2, CAMERA).centre
     assert paced[1] - lagging[1] > continued_3d.diameter  # the two guesses are apart
     moving = np.zeros((CAMERA.height, CAMERA.width), bool)
     yy, xx = np.mgrid[: CAMERA.height, : CAMERA.width]
@@ -171,10 +165,8 @@ def test_a_track_goes_on_where_its_streak_moved_on_though_its_fits_lag_on_speed(
     for cx, cy in (own, other):
         moving |= (xx - cx) ** 2 + (yy - cy) ** 2 <= radius**2
     found = frame_blobs(torch.from_numpy(moving), config.detect)
-    followed = follow(found, tracker.predictions(2), config)
-    assert followed is not None
-    (label, _), _, _ = followed
-    x, y = found.centroids[label]
+    (claim,) = match_tracks(found, [(tracker, tracker.predictions(2))], config).claims
+    x, y = found.centroids[claim.label]
     assert math.hypot(x - own[0], y - own[1]) < 1.5, (x, y, own, other)
 
 
@@ -190,25 +182,27 @@ def test_a_track_paced_by_two_whole_streaks_follows_the_pace_over_a_lagging_3d_g
     )
     tracker.length, tracker.number = 2, 0
     continued_3d = predict(continued(tracker.previous, tracker.earlier, 2, config.video.exposure_fraction), CAMERA)
-    lagging, paced = continued_3d.centre, tracker._glided(2).centre
+    lagging, paced = continued_3d.centre, glide(tracker.previous, tracker.earlier, 2, CAMERA).centre
     radius = 0.4 * continued_3d.diameter
     own, other = (paced[0] + 0.8 * radius, paced[1] + 0.8 * radius), lagging  # the other lies on its guess
     yy, xx = np.mgrid[: CAMERA.height, : CAMERA.width]
 
-    def followed_to(centres: list[tuple[float, float]], taken: frozenset[int] = frozenset()) -> tuple[float, ...]:
+    def followed_to(centres: list[tuple[float, float]]) -> tuple[float, ...]:
         """The centre of the blob followed, and whether a fallback guess found it."""
         moving = np.zeros((CAMERA.height, CAMERA.width), bool)
         for cx, cy in centres:
             moving |= (xx - cx) ** 2 + (yy - cy) ** 2 <= radius**2
         found = frame_blobs(torch.from_numpy(moving), config.detect)
-        followed = follow(found, tracker.predictions(2), config, taken)
-        assert followed is not None
-        return (*found.centroids[followed[0][0]], followed[2].fallback)
+        (claim,) = match_tracks(found, [(tracker, tracker.predictions(2))], config).claims
+        assert claim.prediction is not None
+        return (*found.centroids[claim.label], claim.prediction.fallback)
 
     x, y, fallback = followed_to([own, other])
     assert math.hypot(x - own[0], y - own[1]) < 1.5 and not fallback
     # Nothing where the pace leads (an object that landed stops): the 3D guess is still followed.
-    reach = config.detect.gate * tracker._glided(2).diameter + radius  # gate_distance's
+    reach = (
+        config.detect.gate * glide(tracker.previous, tracker.earlier, 2, CAMERA).diameter + radius
+    )  # gate_distance's
     far = (paced[0], paced[1] - reach - 2)  # beyond the paced guess's reach, in the 3D guess's
     x, y, fallback = followed_to([far])
     assert math.hypot(x - far[0], y - far[1]) < 1.5 and fallback
@@ -218,71 +212,138 @@ def test_a_track_paced_by_two_whole_streaks_follows_the_pace_over_a_lagging_3d_g
     assert math.hypot(x - other[0], y - other[1]) < 1.5
 
 
-def test_a_track_of_one_frame_chooses_after_a_longer_one_that_would_take_its_blob() -> None:
-    # falling_pen.avi: the pen's streak came in two pieces; the second started a track, whose
-    # guess at its direction landed nearer the next frame's blob than the pen's track did.
-    config = load_config("fast")
-    moving = np.zeros((40, 60), bool)
-    moving[10:20, 20:40] = True
-    found = frame_blobs(torch.from_numpy(moving), config.detect)
-    pen, piece = Tracker(CAMERA, config), Tracker(CAMERA, config)
-    pen.length, piece.length = 5, 1
-    last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
-    far, near = Prediction((30.0, 30.0), 10.0), Prediction((30.0, 17.0), 10.0)
-    wants = [(piece, ((1, 0), last, near)), (pen, ((1, 0), last, far))]
-    assert choosing_order(found, wants, gate=config.detect.gate) == [1, 0]
-    assert choosing_order(found, wants, [math.inf, math.inf], gate=config.detect.gate) == [1, 0]
-    # But where the longer track would find another blob, the nearer guess chooses first:
-    # falling_three.mp4's red end's track, its guess drifted, took the pale end's blob from the
-    # pale end's new track, though the red end's own blob lay in its gate.
-    assert choosing_order(found, wants, [math.inf, 0.5], gate=config.detect.gate) == [0, 1]
-    # With a third, longer track that has another blob too, in either order: the track of one
-    # frame still comes after the pen, which has no other blob; and the pen, far though its
-    # guess lands, before the nearer third, which has another blob.
-    other = Tracker(CAMERA, config)
-    piece.length, other.length = 1, 3
-    three = [(pen, ((1, 0), last, far)), (other, ((1, 0), last, Prediction((30.0, 22.0), 10.0))), wants[0]]
-    assert choosing_order(found, three, [math.inf, 0.5, 0.5], gate=config.detect.gate) == [0, 1, 2]
-    assert choosing_order(found, three[::-1], [0.5, 0.5, math.inf], gate=config.detect.gate) == [2, 1, 0]
-    # Of tracks that know their direction, and would both find another blob as near or neither
-    # would, the nearer prediction chooses first, however long: two objects on one path.
-    piece.length = 2
-    assert choosing_order(found, wants, gate=config.detect.gate) == [0, 1]
-    assert choosing_order(found, wants, [0.5, 0.5], gate=config.detect.gate) == [0, 1]
-    # Unless the farther one's going first lands both nearer their blobs: two objects on one
-    # path two frames apart, cold, where the lead's guess at one direction lay on the trail's
-    # blob, nearer than the trail's own guess, and its other guess on its own blob.
-    assert choosing_order(found, wants, [0.1, 3.0], gate=config.detect.gate) == [1, 0]
-    # As long as each other: the one chosen goes first though its guess lands farther.
-    pen.length = 2
-    assert choosing_order(found, wants, [0.1, 3.0], gate=config.detect.gate) == [1, 0]
-    pen.length = 5
-    # A track that would find no other blob costs a miss at the gate's edge, no more: a slow
-    # mover's track, its guess far off, does not take a fast object's blob for having no other.
-    assert choosing_order(found, wants, [3.0, math.inf], gate=4.0) == [0, 1]
+def _track(config: Config, number: int, length: int) -> Tracker:
+    """A track of ``length`` frames numbered ``number`` (its last frame a stand-in)."""
+    tracker = Tracker(CAMERA, config)
+    tracker.number, tracker.length = number, length
+    tracker.previous = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
+    return tracker
 
 
-def test_a_track_whose_blob_was_taken_goes_to_a_blob_left_that_is_nearer_or_no_track_wants() -> None:
-    # falling_three.mp4, frame 13: the pale end's guess lagged, landing between the red end's
-    # streak (taken first by the red end's track) and its own, a little nearer the red end's.
+def _guess(x: float, y: float, diameter: float = 10.0, fallback: bool = False) -> Prediction:
+    """A guess at a streak centred on (x, y), running 10 px along x."""
+    return Prediction((x, y), diameter, None, ((x - 5.0, y), (x + 5.0, y)), fallback)
+
+
+def _blobs(config: Config, boxes: list[tuple[int, int, int, int]], shape: tuple[int, int] = (60, 120)) -> FrameBlobs:
+    moving = np.zeros(shape, bool)
+    for x, y, w, h in boxes:
+        moving[y : y + h, x : x + w] = True
+    return frame_blobs(torch.from_numpy(moving), config.detect)
+
+
+def _label_at(found: FrameBlobs, x: float, y: float) -> int:
+    return int(found.labels[int(y), int(x)])
+
+
+def _taken(matched: Matched) -> dict[int | None, int]:
+    return {c.tracker.number: c.label for c in matched.claims}
+
+
+def _match(found: FrameBlobs, config: Config, tracks: list[tuple[int, int, list[Prediction]]]) -> Matched:
+    """``match_tracks`` for new tracks (number, length, guesses), each guess from its last frame."""
+    asked = []
+    for number, length, guesses in tracks:
+        tracker = _track(config, number, length)
+        asked.append((tracker, [(g, tracker.previous) for g in guesses]))
+    return match_tracks(found, asked, config)
+
+
+def test_a_track_of_one_frame_gives_way_to_a_longer_one_with_no_other_blob() -> None:
+    # A pen's streak came in two pieces and the second started a track, whose guess landed nearer
+    # the next frame's blob than the pen's did: the pen keeps its object.
     config = load_config("fast")
-    moving = np.zeros((60, 80), bool)
-    moving[5:15, 10:30] = True  # the streak taken first, box centre (20, 10)
-    moving[40:50, 10:30] = True  # the streak left, box centre (20, 45)
-    found = frame_blobs(torch.from_numpy(moving), config.detect)
-    taken, left = (1, 2) if found.centroids[1][1] < found.centroids[2][1] else (2, 1)
-    last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
-    guess = Prediction((20.0, 25.0), 10.0)  # 15 px from the taken streak, 20 from the other
-    wanted, rest = ((taken, 0), last, guess), ((left, 0), last, guess)
-    assert goes_elsewhere(found, wanted, rest, {taken})  # no track wants the other first
-    assert not goes_elsewhere(found, wanted, rest, {taken, left})  # another track's: share
-    assert not goes_elsewhere(found, wanted, None, {taken})
-    # But not where only a fallback guess reaches it: the object that landed in the bowl.
-    fallback = ((left, 0), last, dataclasses.replace(guess, fallback=True))
-    assert not goes_elsewhere(found, wanted, fallback, {taken})
-    # A blob left that lands nearer goes, wanted or not: the other track only passed near.
-    nearer = ((left, 0), last, Prediction((20.0, 40.0), 10.0))
-    assert goes_elsewhere(found, wanted, nearer, {taken, left})
+    found = _blobs(config, [(20, 10, 20, 10)])
+    pen, piece = (0, 5, [_guess(30.0, 30.0)]), (1, 1, [_guess(30.0, 17.0)])
+    for tracks in ([pen, piece], [piece, pen]):
+        matched = _match(found, config, tracks)
+        assert _taken(matched) == {0: 1} and not matched.merged
+    # Where the longer track has a blob of its own in its gate, the nearer guess takes the blob.
+    found = _blobs(config, [(20, 10, 20, 10), (20, 40, 20, 10)])
+    mine, other = _label_at(found, 30, 15), _label_at(found, 30, 45)
+    assert _taken(_match(found, config, [(0, 5, [_guess(30.0, 35.0)]), piece])) == {0: other, 1: mine}
+    # A longer track whose only other blob a fallback guess reaches keeps the blob too.
+    far = [_guess(30.0, 18.0, 4.0), _guess(30.0, 45.0, fallback=True)]  # the first's gate: 26 px
+    assert _taken(_match(found, config, [(0, 5, far), piece]))[0] == mine
+
+
+def test_a_track_whose_blob_another_takes_goes_to_a_blob_left_in_its_gate_else_shares() -> None:
+    # Three objects: a track's guess lagged between the streak another track took and its own.
+    config = load_config("fast")
+    found = _blobs(config, [(10, 5, 20, 10), (10, 40, 20, 10)])
+    upper, lower = _label_at(found, 20, 10), _label_at(found, 20, 45)
+    lead, lagging = (0, 3, [_guess(20.0, 10.0)]), (1, 3, [_guess(20.0, 25.0)])
+    matched = _match(found, config, [lead, lagging])
+    assert _taken(matched) == {0: upper, 1: lower} and all(c.part is None for c in matched.claims)
+    # Where only a fallback guess reaches the blob left, the two share the taken blob.
+    lagging = (1, 3, [_guess(20.0, 13.0, 5.0), _guess(20.0, 45.0, fallback=True)])
+    matched = _match(found, config, [lead, lagging])
+    assert _taken(matched) == {0: upper, 1: upper}
+    assert [[t.number for t in c.shared_with] for c in matched.claims] == [[1], [0]]
+
+
+def test_the_assignment_does_not_depend_on_the_order_of_the_tracks() -> None:
+    config = load_config("fast")
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        boxes = [(int(x), int(y), int(w), 10) for x, y, w in rng.integers((0, 0, 12), (100, 50, 30), (5, 3))]
+        found = _blobs(config, boxes)
+        tracks = []
+        for number in range(int(rng.integers(2, 6))):
+            guesses = [
+                _guess(*rng.uniform((0, 0), (120, 60)), fallback=bool(k and rng.random() < 0.5)) for k in range(2)
+            ]
+            tracks.append((number, int(rng.choice([1, 2, 5])), guesses))
+        outcomes = []
+        for order in (tracks, tracks[::-1], [tracks[k] for k in rng.permutation(len(tracks))]):
+            found_copy = _blobs(config, boxes)
+            matched = _match(found_copy, config, order)
+            outcomes.append(
+                (
+                    sorted(
+                        (c.tracker.number, c.label, sorted(t.number for t in c.shared_with)) for c in matched.claims
+                    ),
+                    sorted((t.number, label) for t, label in matched.merged),
+                    [
+                        None if c.part is None else c.part.tobytes()
+                        for c in sorted(matched.claims, key=lambda c: c.tracker.number)
+                    ],
+                )
+            )
+        assert outcomes[0] == outcomes[1] == outcomes[2]
+    assert found.count > 1
+
+
+def _merge(found: FrameBlobs, config: Config, holder: Tracker, merged: Tracker) -> Matched:
+    """Two tracks' guesses on blob 1, the ``holder``'s nearer, without streaks to share it by."""
+    return match_tracks(
+        found,
+        [
+            (merged, [(Prediction((30.0, 18.0), 10.0), merged.previous)]),
+            (holder, [(Prediction((30.0, 15.0), 10.0), holder.previous)]),
+        ],
+        config,
+    )
+
+
+def test_a_track_whose_streak_merged_into_another_s_coasts_then_ends() -> None:
+    # Its streak inside a blob the other track takes, nearer that one's guess, and no way to share
+    # it out (no predicted streaks).
+    for max_coast in (0, 2):
+        config = load_config("fast", [f"track.max_coast={max_coast}"])
+        found = _blobs(config, [(20, 10, 20, 10)])
+        holder, merged = _track(config, 0, 5), _track(config, 1, 3)
+
+        for _ in range(max_coast):
+            matched = _merge(found, config, holder, merged)
+            assert _taken(matched) == {0: 1} and matched.merged == [(merged, 1)]
+            assert merged.length == 3
+        assert _merge(found, config, holder, merged).merged == [(merged, 1)]
+        assert merged.length == 0 and merged.previous is None  # ended
+    # A track with no blob in its gate ends at once.
+    lost = _track(config, 2, 5)
+    matched = match_tracks(found, [(lost, [(Prediction((100.0, 50.0), 5.0), lost.previous)])], config)
+    assert not matched.claims and not matched.merged and lost.previous is None
 
 
 def test_a_piece_of_a_track_s_streak_split_off_as_an_object_beside_it_is_joined_back() -> None:
@@ -339,28 +400,17 @@ def test_beside_a_tracked_object_only_objects_of_their_own_start_tracks() -> Non
 
 
 def test_a_blob_three_streaks_touch_in_is_shared_out_among_all_three() -> None:
-    # The slow-beside scenario's pen merged into the blob the first and second objects already
-    # shared: it could not share a shared blob, and coasted through the frame.
     config = load_config("fast")
     moving = np.zeros((40, 100), bool)
     moving[15:25, 5:95] = True  # three streaks end to end, one blob
     found = frame_blobs(torch.from_numpy(moving), config.detect)
     streaks = [Prediction((x + 12.5, 20.0), 10.0, None, ((x + 5.0, 20.0), (x + 20.0, 20.0))) for x in (5, 35, 65)]
-    first, second, third = (Tracker(CAMERA, config) for _ in range(3))
-    first.length = second.length = third.length = 2
-    last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
-    claims = [Claim(first, 1, 0, streaks[0])]
-    # A track of one frame only guesses its direction: it shares no blob (falling_three frame
-    # 10: the red end's track took the lower half of the pale end's streak so).
-    assert share_claim(found, ((1, 0), last, streaks[1]), claims, Tracker(CAMERA, config), config) is None
-    first.length = 1  # nor with one: its part would be a guess too
-    assert share_claim(found, ((1, 0), last, streaks[1]), claims, second, config) is None
-    first.length = 2
-    assert claims[0].part is None and not claims[0].shared_with
-    claims.append(share_claim(found, ((1, 0), last, streaks[1]), claims, second, config))
-    shared = share_claim(found, ((1, 0), last, streaks[2]), claims, third, config)
-    assert shared is not None
-    claims.append(shared)
+    # A track of one frame only guesses its direction: it shares no blob, and gives way.
+    matched = _match(found, config, [(0, 1, streaks[:1]), (1, 2, streaks[1:2]), (2, 2, streaks[2:])])
+    assert sorted(_taken(matched)) == [1, 2]
+    assert [[t.number for t in c.shared_with] for c in matched.claims] == [[2], [1]]
+    matched = _match(found, config, [(n, 2, [s]) for n, s in enumerate(streaks)])
+    claims = matched.claims
     parts = [c.part for c in claims]
     assert all(p is not None for p in parts)
     owners = np.stack(parts).sum(0)
@@ -404,7 +454,9 @@ def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(tmp_path: Path)
     # that object's whole blob and split it: only a blob larger than its track's own of the next
     # frame, by about the looking track's object, holds that object too.
     config = load_config("fast")
-    assert proven_length(config) == 3 and proven_length(load_config("fast", ["video.min_track_frames=1"])) == 2
+    assert (
+        proven_length(config.video) == 3 and proven_length(load_config("fast", ["video.min_track_frames=1"]).video) == 2
+    )
     numbers = TrackNumbers()
     owner, late = Tracker(CAMERA, config, numbers), Tracker(CAMERA, config, numbers)
     owner.number, late.number = 0, 1
@@ -461,3 +513,87 @@ def test_a_track_coasts_for_its_config_s_frames_then_ends() -> None:
         assert tracker.length == 3, max_coast
         tracker.coast()
         assert tracker.length == 0, max_coast
+
+
+def _streak_fit(
+    frame: FrameWithBackground,
+    detection: Detection,
+    camera: PinholeCamera,
+    config: Config,
+    start: FrameResult | None,
+    device: torch.device,
+    masks: object = None,
+    earlier: FrameResult | None = None,
+) -> FrameResult:
+    """A stand-in for the fit: the detection's pixels read as a ball of unit diameter smeared
+    along their longest axis, as wide as they are across, at the depth that width gives."""
+    ys, xs = np.nonzero(detection.mask.cpu().numpy())
+    points = np.stack((xs, ys), 1).astype(np.float64)
+    centre = points.mean(0)
+    axes = np.linalg.svd(points - centre, full_matrices=False)[2]
+    along, across = (points - centre) @ axes[0], (points - centre) @ axes[1]
+    diameter = float(across.max() - across.min() + 1)
+    half = max((float(along.max() - along.min()) + 1 - diameter) / 2, 0.5)
+    ends = torch.tensor(np.stack((centre - half * axes[0], centre + half * axes[0])), dtype=torch.float32)
+    x0, x1 = camera.unproject(ends, torch.full((2,), camera.fy / diameter))
+    vertices, topology = load_prototype("sphere")
+    state = ObjectState(
+        vertices, topology, torch.full((3, 8, 8), 0.5), Motion(x0, x1 - x0, torch.eye(3), torch.zeros(3))
+    )
+    return FrameResult(frame.index, detection.box, detection.box, camera, state, "cold", "sphere", {}, [], 0.0)
+
+
+MOVERS = {  # start (x, y) of the first streak, travel (x, y) per frame, first frame, colour
+    "down": ((60.0, 30.0), (24.0, 16.0), 0, (0.9, 0.2, 0.2)),
+    "up": ((60.0, 210.0), (24.0, -16.0), 0, (0.2, 0.3, 0.9)),
+    "later": ((20.0, 20.0), (0.0, 24.0), 2, (0.2, 0.8, 0.3)),
+}
+
+
+def _streaks(
+    frames: int, radius: float = 6.0
+) -> tuple[list[FrameWithBackground], list[dict[str, tuple[float, float]]]]:
+    """Frames of the :data:`MOVERS` as capsules (a shutter open the whole frame), and per frame
+    the centre of each mover's streak."""
+    yy, xx = np.mgrid[:240, :320].astype(np.float64)
+    background = torch.full((3, 240, 320), 0.5)
+    out, centres = [], []
+    for k in range(frames):
+        pixels, here = background.clone(), {}
+        for name, ((x, y), (vx, vy), first, colour) in MOVERS.items():
+            if k < first:
+                continue
+            a = np.array((x + vx * (k - first), y + vy * (k - first)))
+            along = np.clip(((xx - a[0]) * vx + (yy - a[1]) * vy) / (vx * vx + vy * vy), 0, 1)
+            inside = np.hypot(xx - a[0] - along * vx, yy - a[1] - along * vy) <= radius
+            pixels[:, torch.from_numpy(inside)] = torch.tensor(colour)[:, None]
+            here[name] = (a[0] + vx / 2, a[1] + vy / 2)
+        out.append(FrameWithBackground(k, pixels, background))
+        centres.append(here)
+    return out, centres
+
+
+def test_two_objects_that_cross_keep_their_tracks_and_one_outside_every_gate_starts_its_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The two streaks touch in frames 5 and 6; the third mover appears at frame 2, far from both.
+    monkeypatch.setattr("sfb_video.stages.track.fit_detection", _streak_fit)
+    frames, centres = _streaks(10)
+    config = load_config("fast", ["video.max_objects=0"])
+    statuses = track_and_fit(iter(frames), tmp_path, CAMERA, config, CPU)
+    whose: dict[int, set[str]] = {}
+    seen: dict[int, list[int]] = {}
+    for s in statuses:
+        if s.status != "fitted" or s.touched:
+            continue
+        assert s.box is not None and s.track is not None
+        x, y, w, h = s.box
+        name = min(centres[s.index], key=lambda n: math.dist(centres[s.index][n], (x + w / 2, y + h / 2)))
+        whose.setdefault(s.track, set()).add(name)
+        seen.setdefault(s.track, []).append(s.index)
+    assert sorted(len(names) for names in whose.values()) == [1, 1, 1], whose  # no track swaps objects
+    track = {names.pop(): t for t, names in whose.items()}
+    assert set(track) == set(MOVERS)
+    for name in ("down", "up"):  # one track each, before the crossing and after it
+        assert {0, 1, 2, 3, 4, 7, 8, 9} <= set(seen[track[name]]), seen
+    assert min(seen[track["later"]]) == 2 and len(seen[track["later"]]) >= 6
