@@ -37,8 +37,8 @@ from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.scene import ObjectState
 from sfb_video.results import FrameKey, FrameResult, SavedWindow, save_window
 from sfb_video.stages.composite import fit_quality, object_radius, path_mask
-from sfb_video.stages.detect import parallel
 from sfb_video.stages.run_results import RunResults
+from sfb_video.stages.side_by_side import parallel
 from sfb_video.stages.types import FrameWithBackground
 from sfb_video.timing import timed
 

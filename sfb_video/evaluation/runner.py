@@ -232,8 +232,37 @@ def run_sequence(
                 result = None
             emit(scored(frame, mode, result, time.perf_counter() - start, camera))
         return rows
-    # The pipeline's tracking step decides the tracks and warm starts, on the box the benchmark
-    # hands over as the frame's one blob; a frame is scored once no later frame can change it.
+    statuses, camera = _tracked(frames, clip, mode, config, device, masks, with_video, scored, emit, fitted)
+    if mode != "joint" or camera is None:
+        return rows
+    video_rows = [r for r in rows if r.mode == "video"]
+    unfitted = [r for r in rows if r.mode == "joint"]
+    if with_video:  # a frame with no object scores 0 in both modes
+        for row in unfitted:
+            video_rows.append(dataclasses.replace(row, mode="video"))
+            if on_frame is not None:
+                on_frame(video_rows[-1])
+    joint_rows = _joint_rows(sequence, statuses, fitted, unfitted, camera, config, device, clip, on_frame, on_images)
+    return sorted(video_rows, key=lambda r: r.frame) + joint_rows
+
+
+def _tracked(
+    frames: Iterator[BenchmarkFrame],
+    clip: SyntheticClip | None,
+    mode: str,
+    config: Config,
+    device: torch.device,
+    masks: MaskSource | None,
+    with_video: bool,
+    scored: Callable[..., FrameRow],
+    emit: Callable[[FrameRow], None],
+    fitted: dict[int, tuple[BenchmarkFrame, FrameResult, float]],
+) -> tuple[list[FrameStatus], PinholeCamera | None]:
+    """Fit ``frames`` through the pipeline's tracking step (:class:`Tracking`), which decides the
+    tracks and warm starts, on the box the benchmark hands over as each frame's one blob: each
+    frame is scored (``scored``, then ``emit``) once no later frame can change it, in the
+    ``video`` mode (``joint`` with ``with_video``), or its fit kept in ``fitted`` (``joint``).
+    Returns every frame's status and the clip's camera (None: no frame)."""
     held: dict[int, BenchmarkFrame] = {}
     seconds: dict[int, float] = {}
     statuses: list[FrameStatus] = []
@@ -271,17 +300,7 @@ def run_sequence(
         tracking.step(inputs, box_blobs(inputs, frame.box, config.detect))
     if tracking is not None:
         tracking.buffer.close()
-    if mode != "joint" or camera is None:
-        return rows
-    video_rows = [r for r in rows if r.mode == "video"]
-    unfitted = [r for r in rows if r.mode == "joint"]
-    if with_video:  # a frame with no object scores 0 in both modes
-        for row in unfitted:
-            video_rows.append(dataclasses.replace(row, mode="video"))
-            if on_frame is not None:
-                on_frame(video_rows[-1])
-    joint_rows = _joint_rows(sequence, statuses, fitted, unfitted, camera, config, device, clip, on_frame, on_images)
-    return sorted(video_rows, key=lambda r: r.frame) + joint_rows
+    return statuses, camera
 
 
 def _camera(frame: BenchmarkFrame, clip: SyntheticClip | None, config: Config) -> PinholeCamera:

@@ -13,9 +13,7 @@ from sfb_video.crop import Box
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion
 from sfb_video.results import FrameResult
-from sfb_video.stages.detect import (
-    parallel,
-)
+from sfb_video.stages.side_by_side import parallel
 from sfb_video.stages.types import Prediction
 
 

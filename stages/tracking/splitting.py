@@ -30,7 +30,7 @@ class Claim:
 
 def on_its_streak(found: FrameBlobs, claim: Claim, free: set[int]) -> list[int]:
     """The other pieces of the blob that ``claim``'s was split from as objects beside each other
-    (:func:`~sfb_video.stages.detect.side_by_side`), among the ``free`` blobs (no track took them
+    (:func:`~sfb_video.stages.side_by_side.side_by_side`), among the ``free`` blobs (no track took them
     or wants them first, and no object of its own, :func:`new_objects`), that lie on its track's
     predicted streak rather than beside it: their centres within half its object's diameter of
     the line along the predicted motion through its blob's (a thin streak split in two cores end
