@@ -10,7 +10,6 @@ the same clip and config. The exports are written last, from the saved results,
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 from collections.abc import Callable
@@ -40,14 +39,15 @@ from sfb_video.run_folder import (
     saved_frames,
 )
 from sfb_video.stages.background import frames_read, with_backgrounds
-from sfb_video.stages.export import Exported, export_frames
+from sfb_video.stages.export import export_frames
 from sfb_video.stages.masks import MaskSource, choose_masks, print_line
 from sfb_video.stages.read import check_video, probe, select_frames
 from sfb_video.stages.register import camera_motion
 from sfb_video.stages.run_results import FolderSource, RunResults, read_run, write_statuses
+from sfb_video.stages.summary import summarise
 from sfb_video.stages.track import track_and_fit
 from sfb_video.stages.trajectory import write_csv
-from sfb_video.stages.types import FrameStatus, Status
+from sfb_video.stages.types import FrameStatus
 from sfb_video.stages.windows import fit_windows
 from sfb_video.timing import timed
 from sfb_video.video import VideoInfo
@@ -149,138 +149,11 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     with Recorder(folder / RECORDING, camera, name, subframes=tsr) as recorder:
         done = export_frames(folder, stream, results, camera, size, info.fps, tsr, config, diameter, recorder)
         write_csv(folder / TRAJECTORY, done.rows)
-        summary = _summary(record, info, statuses, done, tsr, device_note, config.video.min_explained)
-        summary["tracks"] = _track_summary(statuses, done)
-        summary["camera"] = _camera_summary(motion)
-        summary["joint"] = _joint_summary(results)
+        min_explained = config.video.min_explained
+        summary = summarise(record, info, results, done, motion, tsr, device_note, min_explained, OUTPUTS).to_json()
         recorder.log_run(config_to_dict(config), summary)
     write_json(folder / SUMMARY, summary)
     return summary
-
-
-def _summary(
-    record: dict,
-    info: VideoInfo,
-    statuses: list[FrameStatus],
-    done: Exported,
-    tsr: int,
-    device_note: str,
-    min_explained: float,
-) -> dict:
-    frames = [dataclasses.asdict(s) | done.fits.get(s.key, {}) for s in statuses]  # type: ignore[arg-type]
-    fits = list(done.fits.values())
-    read = {s.index for s in statuses}
-    fitted = {key.index for key in done.fits}
-
-    def mean(key: str, start: str | None = None) -> float | None:
-        values = [f[key] for f in fits if start in (None, f["start"])]
-        return sum(values) / len(values) if values else None
-
-    return {
-        "video": record["video"],
-        "width": info.width,
-        "height": info.height,
-        "fps": info.fps,
-        "frames_read": len(read),
-        "frames_fitted": len(fitted),
-        "objects_fitted": len(fits),
-        "frames_without_object": len({s.index for s in statuses if s.status == Status.NO_OBJECT} - fitted),
-        "frames_with_other_movers": len({s.index for s in statuses if "other moving object" in s.note}),
-        "dropped_tracks": sorted({s.track for s in statuses if s.status == Status.DROPPED}),
-        "cold_starts": sum(f["start"] == "cold" for f in fits),
-        "warm_starts": sum(f["start"] == "warm" for f in fits),
-        "mean_seconds_cold": mean("seconds", "cold"),
-        "mean_seconds_warm": mean("seconds", "warm"),
-        "mean_image_loss": None if not fits else sum(f["losses"]["image"] for f in fits) / len(fits),
-        "unexplained_frames": sorted({k.index for k, f in done.fits.items() if f["explained"] < min_explained}),
-        "min_explained": min_explained,
-        "best_frame": None if done.best is None else done.best.index,
-        "best_track": None if done.best is None else done.best.track,
-        "tsr": tsr,
-        "tsr_video_frames": done.video_frames,
-        "object_diameter_m": record["object_diameter"],
-        "device": device_note,
-        "masks": {"source": record.get("masks", "diff"), "reason": record.get("masks_reason", "")},
-        "outputs": OUTPUTS,
-        "frames": frames,
-    }
-
-
-def _track_summary(statuses: list[FrameStatus], done: Exported) -> list[dict]:
-    """What summary.json says of each track: its frames, its prototype (the last frame's), its
-    median speed and mean ``explained``."""
-    rows = []
-    for track in sorted({key.track for key in done.fits}):
-        fits = {key.index: f for key, f in sorted(done.fits.items()) if key.track == track}
-        speeds = sorted(f["speed_sizes_per_s"] for f in fits.values())
-        rows.append(
-            {
-                "track": track,
-                "frames": sorted(fits),
-                "merged_frames": sorted(s.index for s in statuses if s.track == track and s.status == Status.MERGED),
-                "prototype": fits[max(fits)]["prototype"],
-                "speed_sizes_per_s": speeds[len(speeds) // 2],
-                "explained": sum(f["explained"] for f in fits.values()) / len(fits),
-            }
-        )
-    return rows
-
-
-def _camera_summary(motion: CameraMotion | None) -> dict:
-    """What summary.json says of the camera's motion: whether the frames were registered, into
-    how many references (a pan beyond the first view), and which frames failed to register."""
-    if motion is None:
-        return {"moving": False, "references": 1, "unregistered": {}}
-    return {
-        "moving": motion.moving,
-        "references": motion.references,
-        "unregistered": {str(i): note for i, note in sorted(motion.failed.items())},
-    }
-
-
-def _mean(values: list[float]) -> float | None:
-    return sum(values) / len(values) if values else None
-
-
-def _joint_summary(results: RunResults) -> dict:
-    """What summary.json says of the joint fits: per saved window its frames, those it stands
-    for, motion model, exposure fraction, prototype (and the candidates' trial losses, the trial
-    of shapes' scores and how clearly its shape won), and the mean L_I before and after."""
-    rows = []
-    for window in results.windows:
-        saved = results.window(window.key)
-        if saved is None:  # its fit diverged
-            continue
-        joint, frames = saved.result, list(window.frames)
-        rows.append(
-            {
-                "track": window.track,
-                "frames": frames,
-                "model": joint.trajectory.model,
-                "bounce_frame": None if joint.bounce is None else frames[0] + joint.bounce,
-                "exposure_fraction": joint.trajectory.exposure_fraction,
-                "prototype": joint.prototype,
-                "prototype_trials": joint.trials,
-                "shape_trial": joint.shapes,
-                "shape_margin": joint.shape_margin,
-                "refined": sorted(joint.refined),
-                "image_loss_before": sum(saved.before[i]["image"] for i in frames) / len(frames),
-                "image_loss_after": sum(joint.frame_losses(i)["image"] for i in frames) / len(frames),
-                "explained_before": _mean([saved.explained[i][0] for i in frames if i in saved.explained]),
-                "explained_after": _mean([saved.explained[i][1] for i in frames if i in saved.explained]),
-                "accepted": saved.accepted,
-                "shown_frames": results.shown_frames(window),
-                "seconds": joint.seconds,
-            }
-        )
-    fractions = sorted(r["exposure_fraction"] for r in rows if r["accepted"])
-    return {
-        "enabled": bool(results.windows),
-        "windows_accepted": sum(r["accepted"] for r in rows),
-        "windows_rejected": sum(not r["accepted"] for r in rows),
-        "exposure_fraction": fractions[len(fractions) // 2] if fractions else None,
-        "windows": rows,
-    }
 
 
 def check_options(options: ProcessOptions, frames: range | None, info: VideoInfo) -> None:
