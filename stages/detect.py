@@ -489,12 +489,15 @@ def frame_blobs(
     return FrameBlobs(count, labels, stats, centroids, pixels, whole, joined, config)
 
 
-def box_blobs(frame: FrameWithBackground, box: Box, config: DetectConfig) -> FrameBlobs:
+def box_blobs(frame: FrameWithBackground, box: Box, config: DetectConfig, whole: bool = False) -> FrameBlobs:
     """The blobs of a frame whose object's ``box`` (x, y, w, h) is given (a benchmark hands it
-    over): one blob, the box's changed pixels, with the whole box as its box; none where nothing
-    changed there. A track goes on into it by the same gate as into a detected blob."""
+    over): one blob, the box's changed pixels (``whole``: all its pixels), with the whole box as
+    its box; none where nothing changed there. A track goes on into it by the same gate as into a
+    detected blob."""
     x, y, w, h = box
     changed = difference_mask(frame.pixels, frame.background_pixels, config, frame.known)[y : y + h, x : x + w]
+    if whole:
+        changed = torch.ones_like(changed)
     labels = np.zeros(tuple(frame.pixels.shape[1:]), np.int32)
     labels[y : y + h, x : x + w] = changed.cpu().numpy()
     ys, xs = np.nonzero(labels)

@@ -290,14 +290,22 @@ def _tracked(
         if mode == "video" or with_video:
             emit(scored(frame, "video", result, seconds[status.index], camera))
 
-    one_at_a_time = dataclasses.replace(config, video=dataclasses.replace(config.video, max_objects=1))
+    # The box is the object, however few of its pixels changed: it is the frame's one blob.
+    video, detect = dataclasses.replace(config.video, max_objects=1), dataclasses.replace(config.detect, min_area_px=1)
+    one_at_a_time = dataclasses.replace(config, video=video, detect=detect)
     tracking: Tracking | None = None
     for frame in frames:
         camera = _camera(frame, clip, config)
         tracking = tracking or Tracking(camera, one_at_a_time, FrameBuffer(None, report), refit)
         held[frame.index] = frame
         inputs = _inputs(frame)
-        tracking.step(inputs, box_blobs(inputs, frame.box, config.detect))
+        found = box_blobs(inputs, frame.box, config.detect)
+        if found.count == 1:
+            # Nothing changed there by the detector's threshold: no track goes on into the box,
+            # but the fit's own threshold may still find the object in it, fitted cold.
+            tracking.restart()
+            found = box_blobs(inputs, frame.box, config.detect, whole=True)
+        tracking.step(inputs, found)
     if tracking is not None:
         tracking.buffer.close()
     return statuses, camera
