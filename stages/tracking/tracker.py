@@ -95,8 +95,8 @@ class Tracker:
         if self.earlier is not None:
             # A second guess from the image: the last streak moved on at the pace of the last
             # two. One frame's fit is unsure of its speed (a longer object moving less blurs
-            # alike) and a falling object gathers speed; follow keeps the guess whose blob lands
-            # nearer.
+            # alike) and a falling object gathers speed; each blob is taken by its cheaper guess
+            # (:mod:`~sfb_video.stages.tracking.cost`).
             glided = self._glided(index)
             last = predict(self.previous.state.motion, self.camera).centre
             if self._clean_pace() and lags(predicted[0][0], glided, last, self.config):
@@ -133,9 +133,9 @@ class Tracker:
             self.lose()
 
     def found(self, followed: FrameResult | None) -> FrameResult | None:
-        """Take what :func:`follow` found: the track's last frame in the direction that predicted
-        the object, or None (a new track starts). Returns that frame where it was reversed (to be
-        kept so), else None."""
+        """Take what the assignment found (``match_tracks``): the track's last frame in the
+        direction that predicted the object, or None (a new track starts). Returns that frame where
+        it was reversed (to be kept so), else None."""
         if followed is None:
             self.lose()
             self.earlier = None
