@@ -132,7 +132,7 @@ def score_frames(
     stream = running_median(registered(frames, motion), config.video.background_window)
     present = found = detections = 0
     ious = []
-    for frame, mask, neighbours in with_neighbours(stream, config):
+    for frame, mask, neighbours in with_neighbours(stream, config.detect):
         boxes = truth[frame.index]
         detection = choose_blob(frame.index, moving_mask(mask, neighbours, config.detect), None, config.detect)
         present += bool(boxes)

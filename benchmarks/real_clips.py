@@ -86,7 +86,7 @@ def main() -> None:
             summary = process_clip(options, config, torch.device("cpu"), quiet=True)
             seconds = time.perf_counter() - start
             _, statuses = read_run(out)
-            camera = clip_camera(probe(clip, config.video), config, None)
+            camera = clip_camera(probe(clip, config.video), config.camera, None)
             boxes = {s.key: s.box for s in statuses}
             joint_e = summary["joint"]["exposure_fraction"] or config.video.exposure_fraction
             before = measure(load_results(out), boxes, config.video.exposure_fraction, camera)

@@ -212,7 +212,7 @@ def _export_size(box: Box, render: RenderConfig) -> tuple[int, int]:
 
 
 def render_patches(
-    state: ObjectState, camera: PinholeCamera, box: Box, background: torch.Tensor, n: int, config: Config
+    state: ObjectState, camera: PinholeCamera, box: Box, background: torch.Tensor, n: int, render: RenderConfig
 ) -> torch.Tensor:
     """(n, 3, h, w) float32 sharp sub-frames of ``state`` in ``box`` over ``background``
     ((3, h, w), or (n, 3, h, w): one per sub-frame, such as a farther object's sub-frames).
@@ -220,9 +220,9 @@ def render_patches(
     A box wider than ``render.export_max_width`` is rendered at that width and the object scaled
     up onto it; the background keeps its own pixels."""
     x, y, w, h = box
-    size = _export_size(box, config.render)
+    size = _export_size(box, render)
     small_bg = _resize(background, size)
-    patches = state.render_subframes(camera.crop(x, y, w, h, *size), small_bg, n, config.render)
+    patches = state.render_subframes(camera.crop(x, y, w, h, *size), small_bg, n, render)
     if size != (w, h):
         patches = background + _resize(patches - small_bg, (w, h))
     return patches
@@ -252,7 +252,7 @@ def render_frame(
     box = region_box(region, streak_box(result, camera))
     x, y, w, h = box
     patch_bg = as_float(frame.background_pixels[:, y : y + h, x : x + w])
-    patches = render_patches(result.state, camera, box, patch_bg, n, config)
+    patches = render_patches(result.state, camera, box, patch_bg, n, config.render)
     weights = torch.from_numpy(region[y : y + h, x : x + w]).to(patches.device)
     blurred = patches.mean(0)
     if n * config.render.steps_per_subframe < BLUR_POSES:
@@ -301,7 +301,10 @@ def composite(
             plate = Pasted(frame.background_pixels, layers)
             under = torch.stack([as_float(plate[k][:, y : y + h, x : x + w]) for k in range(n)])
             own = layer(
-                frame.pixels, render_patches(result.state, camera, own.box, under, n, config), own.box, own.weights
+                frame.pixels,
+                render_patches(result.state, camera, own.box, under, n, config.render),
+                own.box,
+                own.weights,
             )
         layers.append(own)
     return reconstruction, Pasted(frame.pixels, layers)

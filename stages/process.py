@@ -20,7 +20,7 @@ import torch
 from tqdm import tqdm
 
 from sfb_video.atomic import write_json
-from sfb_video.config import Config, config_to_dict, save_config
+from sfb_video.config import CameraConfig, Config, config_to_dict, save_config
 from sfb_video.errors import SfbError, printable
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.recording import Recorder
@@ -92,10 +92,10 @@ class ProcessOptions(ClipOptions):
     out: Path
 
 
-def clip_camera(info: VideoInfo, config: Config, focal_px: float | None) -> PinholeCamera:
+def clip_camera(info: VideoInfo, camera: CameraConfig, focal_px: float | None) -> PinholeCamera:
     """The clip's camera: centred principal point, focal length given or from the field of view."""
     if focal_px is None:
-        return PinholeCamera.from_fov(info.width, info.height, config.camera.fov_y_deg)
+        return PinholeCamera.from_fov(info.width, info.height, camera.fov_y_deg)
     if focal_px <= 0:
         raise SfbError(f"--focal-px must be positive, got {focal_px}")
     return PinholeCamera(focal_px, focal_px, (info.width - 1) / 2, (info.height - 1) / 2, info.width, info.height)
@@ -139,7 +139,7 @@ def export_run(folder: Path, config: Config, tsr: int, device_note: str = "cpu")
     background = None if record["background"] is None else Path(record["background"])
     saved_motion = (folder / CAMERA_MOTION).is_file() and config.camera.motion != "off"
     motion = CameraMotion.load(folder / CAMERA_MOTION) if saved_motion else None
-    camera = on_canvas(clip_camera(info, config, record["focal_px"]), motion)
+    camera = on_canvas(clip_camera(info, config.camera, record["focal_px"]), motion)
     # tsr.mp4 shows each frame as filmed, or (stabilised) the canvas as the camera renders it.
     size = (camera.width, camera.height) if config.camera.stabilised else (info.width, info.height)
     stream = with_backgrounds(video, config.video, info.frame_count, frames, background, motion)
@@ -217,7 +217,7 @@ def process_clip(
     info = probe(options.video, config.video)
     frames = select_frames(options.frames, info.frame_count)
     check_options(options, frames, info)
-    camera = clip_camera(info, config, options.focal_px)
+    camera = clip_camera(info, config.camera, options.focal_px)
     masks = choose_masks(options.masks, options.defmo_weights, config.crop, device, log=None if quiet else print_line)
     record = _run_record(options, frames, config, masks)
     # A run that failed before finishing any frame leaves nothing behind to resume.

@@ -26,7 +26,7 @@ from typing import TypeVar
 
 import torch
 
-from sfb_video.config import Config
+from sfb_video.config import Config, DetectConfig, VideoConfig
 from sfb_video.errors import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.results import FrameResult, load_followed
@@ -57,7 +57,7 @@ def _present(items: list[T | None]) -> list[T]:
 
 
 def with_neighbours(
-    frames: Iterator[FrameWithBackground], config: Config
+    frames: Iterator[FrameWithBackground], detect: DetectConfig
 ) -> Iterator[tuple[FrameWithBackground, torch.Tensor, list[Neighbour]]]:
     """Each frame with its difference mask and its neighbours (:class:`~sfb_video.stages.detect.Neighbour`): the
     frames two before and two after (at a clip's ends, two and three away on its one side).
@@ -123,7 +123,7 @@ def with_neighbours(
         )
 
     for frame in frames:
-        ahead.append((frame, difference_mask(frame.pixels, frame.background_pixels, config.detect, frame.known)))
+        ahead.append((frame, difference_mask(frame.pixels, frame.background_pixels, detect, frame.known)))
         if len(ahead) == 4:
             yield emit()
     while ahead:
@@ -182,7 +182,9 @@ class Tracking:
         objects, untracked = _with_new_tracks(found, matched, self.live, self.limit, new_track, config)
         note = f"{untracked} other moving object(s) seen, not tracked (video.max_objects)" if untracked else ""
         merged = matched.merged
-        results, fits, proven = _fit_claims(frame, found, objects, merged, note, self.saved, buffer, self.refit, config)
+        results, fits, proven = _fit_claims(
+            frame, found, objects, merged, note, self.saved, buffer, self.refit, config.video
+        )
         self.live += [c.tracker for c in objects if c.tracker.previous is not None and c.tracker not in self.live]
         owner = {c.label: c.tracker for c in objects}
         for tracker, label in merged:
@@ -227,7 +229,7 @@ def track_and_fit(
 
     tracking = Tracking(camera, config, FrameBuffer(folder, report), refit, saved_frames(folder))
     segment = 0
-    for frame, mask, neighbours in with_neighbours(frames, config):
+    for frame, mask, neighbours in with_neighbours(frames, config.detect):
         if segment_of(frame) != segment:
             tracking.restart()
             segment = segment_of(frame)
@@ -248,7 +250,7 @@ def _fit_claims(
     saved: set[tuple[int, int]],
     buffer: FrameBuffer,
     refit: Refit,
-    config: Config,
+    video: VideoConfig,
 ) -> tuple[list[Pending], list[tuple[Claim, HeldFit]], list[Tracker]]:
     """Fit each track's claim on a blob of ``frame`` (a written fit is loaded: a resumed run) and
     add it to its track. Returns the frame's objects, the fits the look back may refit, and the
@@ -268,7 +270,7 @@ def _fit_claims(
         if claim.shared_with:
             others = ", ".join(str(t.number) for t in claim.shared_with)
             text = f"its streak touched track(s) {others}'s: their pixels shared out by nearness"
-        start = tracker.previous if config.video.warm_start else None
+        start = tracker.previous if video.warm_start else None
         before = tracker.earlier
         try:
             result = loaded or refit(frame, detection, start, before)
@@ -283,7 +285,7 @@ def _fit_claims(
         status = FrameStatus(frame.index, Status.FITTED, detection.box, text, track, shared)
         results.append(Pending(status, result, saved=result is loaded))
         fits.append((claim, HeldFit(tracker, track, claim.prediction, claim.part, start, before)))
-        if not shared and tracker.length == proven_length(config.video):
+        if not shared and tracker.length == proven_length(video):
             proven.append(tracker)
     return results, fits, proven
 

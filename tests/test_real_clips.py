@@ -96,7 +96,7 @@ def test_a_large_faint_disc_is_detected_whole_in_every_frame() -> None:
     config = load_config("fast")
     frames = (Frame(k, torch.from_numpy(np.ascontiguousarray(f.transpose(2, 0, 1)))) for k, f in enumerate(pixels))
     backgrounds = running_median(frames, config.video.background_window)
-    for frame, mask, neighbours in with_neighbours(backgrounds, config):
+    for frame, mask, neighbours in with_neighbours(backgrounds, config.detect):
         found = choose_blob(frame.index, moving_mask(mask, neighbours, config.detect), None, config.detect)
         # The true box holds every pixel 0.02 away from the background; measured IoU 0.73-0.82.
         assert found is not None and box_iou(found.box, boxes[frame.index]) > 0.65, frame.index
@@ -125,7 +125,7 @@ def test_objects_falling_side_by_side_are_found_apart() -> None:
         11: [(369, 68, 18, 49), (330, 101, 16, 43), (356, 134, 15, 50)],
     }
     frames = with_backgrounds(CLIPS / "falling_three.mp4", config.video, 12)
-    for frame, mask, neighbours in with_neighbours(frames, config):
+    for frame, mask, neighbours in with_neighbours(frames, config.detect):
         if frame.index not in cores:
             continue
         moving = moving_mask(mask, neighbours, config.detect)

@@ -164,7 +164,7 @@ def match_tracks(
             continue
         option = own[claim.label]
         if not claim.shared_with:
-            claim.others = option.rivals(found, config)
+            claim.others = option.rivals(found, config.detect)
         if (reversed_first := tracker.found(option.last)) is not None:
             matched.directed.append(reversed_first)
         matched.claims.append(claim)

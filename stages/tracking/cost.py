@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from sfb_video.config import Config
+from sfb_video.config import Config, DetectConfig
 from sfb_video.results import FrameResult
 from sfb_video.stages.detect import FrameBlobs, blob_cost, rivals
 from sfb_video.stages.types import Prediction
@@ -22,9 +22,9 @@ class Option:
     prediction: Prediction
     last: FrameResult
 
-    def rivals(self, found: FrameBlobs, config: Config) -> int:
+    def rivals(self, found: FrameBlobs, detect: DetectConfig) -> int:
         """How many other blobs could have been this one's object (:func:`rivals`)."""
-        return rivals(found, self.label, self.prediction, config.detect)
+        return rivals(found, self.label, self.prediction, detect)
 
 
 def track_options(

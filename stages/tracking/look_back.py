@@ -235,7 +235,7 @@ def _refitted(
     if found_late:
         return load_result(FrameKey(frame.index, fit.number).path(buffer.folder))
     result = refit(frame, detection, start, fit.earlier)
-    return _joined(dataclasses.replace(result, track=fit.number), fit.start, buffer, camera, config)
+    return _joined(dataclasses.replace(result, track=fit.number), fit.start, buffer, camera, config.video)
 
 
 def _first_prediction(index: int, fit: HeldFit, buffer: FrameBuffer, camera: PinholeCamera) -> Prediction | None:
@@ -253,11 +253,11 @@ def _goes_on(fit: HeldFit, index: int) -> bool:
 
 
 def _joined(
-    result: FrameResult, start: FrameResult | None, buffer: FrameBuffer, camera: PinholeCamera, config: Config
+    result: FrameResult, start: FrameResult | None, buffer: FrameBuffer, camera: PinholeCamera, video: VideoConfig
 ) -> FrameResult:
     """A refitted frame of a track in the track's time direction: joined to the frame it started
     from, or where it started cold (the track's first frame), to the track's next frame."""
-    e = config.video.exposure_fraction
+    e = video.exposure_fraction
     if start is not None:
         return join(start, result, camera, e, may_flip_previous=False)[1]
     following = buffer.followed(FrameKey(result.index + 1, result.track))

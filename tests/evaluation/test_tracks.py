@@ -50,7 +50,7 @@ def test_the_evaluation_and_process_build_the_same_tracks(tmp_path: Path) -> Non
 
     # The rule the evaluation had, on process's own fits: it would have cut where the tracker joined.
     fits = {k.index: r for k, r in load_results(out).items()}  # one object
-    camera = clip_camera(probe(video, config.video), config, None)
+    camera = clip_camera(probe(video, config.video), config.camera, None)
     e = config.video.exposure_fraction
     old_rule = [
         min(join_gap(fits[i - 1], fits[i], camera, e), ray_gap(fits[i - 1], fits[i], camera))

@@ -60,7 +60,7 @@ def _neighbours(count: int, failed: int | None = None) -> dict[int, list[int]]:
         pixels = frames[failed].pixels
         registered = Registered(None, pixels, torch.ones(pixels.shape[1:], dtype=torch.bool), 0)
         frames[failed] = dataclasses.replace(frames[failed], registered=registered)
-    for frame, _, near in with_neighbours(iter(frames), config):
+    for frame, _, near in with_neighbours(iter(frames), config.detect):
         out[frame.index] = []
         for n in near:
             index = int(n.mask[0].nonzero()[0])
