@@ -44,24 +44,15 @@ NOTHING_LEFT = 1e9
 """The second round's cost of taking no blob: above every other choice (not a tunable)."""
 
 
-@dataclass(frozen=True)
-class Choice:
-    """What one track takes: an ``option`` (None: no blob), and whether as a share of a blob
-    another track takes too."""
-
-    option: Option | None
-    shared: bool = False
-
-
 def assign(
     options: Sequence[dict[int, Option]],
     coast: Sequence[float],
     shares: Sequence[dict[int, Option]] = (),
     share_cost: float = 0.0,
-) -> list[Choice]:
+) -> list[Option | None]:
     """The assignment of least total cost of tracks to blobs: for each track (its ``options``,
     :func:`track_options`; what taking no blob costs it, ``coast``; the blobs it may take a share
-    of, ``shares``, at ``share_cost`` more), its choice. Each blob goes to one track at most, and
+    of, ``shares``, at ``share_cost`` more), the option it takes, or None. Each blob goes to one track at most, and
     each share copy to its own track."""
     labels = sorted({label for o in options for label in o})
     column = {label: k for k, label in enumerate(labels)}
@@ -74,12 +65,12 @@ def assign(
         cost[i, first_coast + i] = coast[i]
     for k, (i, option) in enumerate(copies):
         cost[i, len(labels) + k] = option.cost + share_cost
-    choices = [Choice(None)] * len(options)
+    choices: list[Option | None] = [None] * len(options)
     for i, j in zip(*linear_sum_assignment(cost), strict=True):
         if j < len(labels):
-            choices[i] = Choice(options[i][labels[j]])
+            choices[i] = options[i][labels[j]]
         elif j < first_coast:
-            choices[i] = Choice(copies[j - len(labels)][1], shared=True)
+            choices[i] = copies[j - len(labels)][1]
     return choices
 
 
@@ -97,7 +88,7 @@ class Matched:
     directed: list[FrameResult]
 
 
-def _contest(options: list[dict[int, Option]], lengths: list[int], config: Config) -> list[Choice]:
+def _contest(options: list[dict[int, Option]], lengths: list[int], config: Config) -> list[Option | None]:
     """The first round (module docstring): no fallback guess, no sharing."""
     edge = math.log1p(config.detect.gate**2)
     plain = [{k: o for k, o in own.items() if not o.prediction.fallback} for own in options]
@@ -105,11 +96,15 @@ def _contest(options: list[dict[int, Option]], lengths: list[int], config: Confi
 
 
 def _left_over(
-    found: FrameBlobs, trackers: list[Tracker], options: list[dict[int, Option]], first: list[Choice], config: Config
+    found: FrameBlobs,
+    trackers: list[Tracker],
+    options: list[dict[int, Option]],
+    first: list[Option | None],
+    config: Config,
 ) -> dict[int, list[Claim]]:
     """The second round (module docstring) and the claims of both rounds, by blob, shared out."""
-    held = {c.option.label: trackers[i] for i, c in enumerate(first) if c.option is not None}
-    rest = [i for i, c in enumerate(first) if c.option is None]
+    held = {c.label: trackers[i] for i, c in enumerate(first) if c is not None}
+    rest = [i for i, c in enumerate(first) if c is None]
     # A track of one frame shares no blob, and no blob with one.
     allowed = [{k: o for k, o in options[i].items() if k not in held} for i in rest]
     unshared: set[int] = {k for k, t in held.items() if t.length < 2}
@@ -122,10 +117,9 @@ def _left_over(
         ]
         second = assign(allowed, [NOTHING_LEFT] * len(rest), shares, config.track.share_cost)
         holders: dict[int, list[Claim]] = {}
-        for i, choice in [*enumerate(first), *zip(rest, second, strict=True)]:
-            if choice.option is not None:
-                claim = Claim(trackers[i], choice.option.label, 0, choice.option.prediction)
-                holders.setdefault(choice.option.label, []).append(claim)
+        for i, option in [*enumerate(first), *zip(rest, second, strict=True)]:
+            if option is not None:
+                holders.setdefault(option.label, []).append(Claim(trackers[i], option.label, 0, option.prediction))
         failed = [c for c in holders.values() if len(c) > 1 and not shared_out(found, c, config.detect.min_area_px)]
         if not failed:
             return holders
