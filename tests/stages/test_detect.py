@@ -12,12 +12,13 @@ from sfb_video.stages.detect import (
     FrameBlobs,
     Neighbour,
     blob_colour,
+    box_blobs,
     choose_blob,
     detect,
     difference_mask,
     frame_blobs,
 )
-from sfb_video.stages.types import Prediction
+from sfb_video.stages.types import FrameWithBackground, Prediction
 
 CONFIG = load_config("default").detect
 
@@ -263,3 +264,16 @@ def test_a_rings_two_sides_a_fence_cut_streak_and_streaks_at_an_angle_stay_one_b
     for name, streaks in cases.items():
         image, background, mask = _streaks(*streaks, fringe=8)
         assert len(_boxes(frame_blobs(mask, CONFIG, (image, background)))) == 1, name
+
+
+def test_a_given_box_is_one_blob_of_its_changed_pixels_or_of_all_of_them_when_asked() -> None:
+    background = torch.full((3, 40, 60), 0.5)
+    image = background.clone()
+    image[:, 12:18, 22:30] = 0.9  # 48 changed pixels inside the box
+    box = (20, 10, 15, 12)
+    found = box_blobs(FrameWithBackground(0, image, background), box, CONFIG)
+    assert found.count == 2 and found.area(1) == 48 and tuple(found.stats[1, :4]) == box
+    still = box_blobs(FrameWithBackground(0, background.clone(), background), box, CONFIG)
+    assert still.count == 1  # nothing changed: no blob
+    whole = box_blobs(FrameWithBackground(0, background.clone(), background), box, CONFIG, whole=True)
+    assert whole.count == 2 and whole.area(1) == 15 * 12 and (whole.labels == 1).sum() == 15 * 12
