@@ -1,8 +1,9 @@
-"""What it costs each track to take each blob of a frame: the cheapest of its predictions'
-:func:`~sfb_video.stages.detect.blob_cost`, a fallback guess's a tier dearer."""
+"""What it costs each track to take each blob of a frame: the :func:`~sfb_video.stages.detect.blob_cost`
+of the one of its predictions that lands nearest the blob, a fallback guess's a tier dearer."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from sfb_video.config import Config, DetectConfig
@@ -31,13 +32,24 @@ def track_options(
     found: FrameBlobs, predictions: list[tuple[Prediction, FrameResult]], config: Config
 ) -> dict[int, Option]:
     """Each blob within the gate of one of a track's ``predictions`` (:meth:`Tracker.predictions`),
-    with its cheapest way to take it; a ``fallback`` prediction's costs ``track.fallback_cost``
-    more, so that it is taken only where no other guess reaches a blob it may take."""
+    taken by the guess whose centre lands nearest it in pixels, at that guess's cost; by a
+    ``fallback`` guess only where no other reaches it, at ``track.fallback_cost`` more, so that
+    the assignment gives a track such a blob only where it has nothing better.
+
+    The guesses of one track are compared in pixels, not in the object diameters of the cost: a
+    guess's diameter is its own (a 3D guess from a fit unsure of its depth foresees a larger
+    object and a longer streak), and measured by it, the vaguer guess would win every blob."""
     options: dict[int, Option] = {}
+    nearest: dict[int, tuple[bool, float]] = {}
     for prediction, last in predictions:
         tier = config.track.fallback_cost if prediction.fallback else 0.0
         for label in range(1, found.count):
             cost = blob_cost(found, label, prediction, config.detect)
-            if cost is not None and (label not in options or cost + tier < options[label].cost):
+            if cost is None:
+                continue
+            x, y = (float(v) for v in found.centroids[label])
+            rank = (prediction.fallback, math.hypot(x - prediction.centre[0], y - prediction.centre[1]))
+            if label not in nearest or rank < nearest[label]:
+                nearest[label] = rank
                 options[label] = Option(label, cost + tier, prediction, last)
     return options

@@ -23,11 +23,12 @@ from sfb_video.model.scene import ObjectState
 from sfb_video.results import FrameResult, save_result
 from sfb_video.run_folder import saved_frames
 from sfb_video.stages.background import running_median
-from sfb_video.stages.detect import FrameBlobs, frame_blobs, share_out
+from sfb_video.stages.detect import FrameBlobs, blob_cost, frame_blobs, share_out
 from sfb_video.stages.fit import continued
 from sfb_video.stages.frame_buffer import FrameBuffer
 from sfb_video.stages.track import track_and_fit, with_neighbours
 from sfb_video.stages.tracking.assignment import Matched, match_tracks
+from sfb_video.stages.tracking.cost import track_options
 from sfb_video.stages.tracking.look_back import Held, HeldFit, held_region, look_back_into, proven_length
 from sfb_video.stages.tracking.prediction import glide, predict
 from sfb_video.stages.tracking.splitting import Claim, on_its_streak
@@ -280,6 +281,25 @@ def test_a_track_whose_blob_another_takes_goes_to_a_blob_left_in_its_gate_else_s
     matched = _match(found, config, [lead, lagging])
     assert _taken(matched) == {0: upper, 1: upper}
     assert [[t.number for t in c.shared_with] for c in matched.claims] == [[1], [0]]
+
+
+def test_a_blob_is_taken_by_the_track_s_guess_that_lands_nearest_it_in_pixels() -> None:
+    # A 3D guess from a fit unsure of its depth foresees a larger object: in its own diameters it
+    # misses less, though its centre lies further off. The streak it would share a blob by is the
+    # nearer guess's.
+    config = load_config("fast")
+    found = _blobs(config, [(20, 10, 20, 10)])
+    label = _label_at(found, 30, 15)
+    near, vague = _guess(30.0, 22.0), _guess(30.0, 25.0, 16.0)
+    assert blob_cost(found, label, vague, config.detect) < blob_cost(found, label, near, config.detect)
+    last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
+    for guesses in ([near, vague], [vague, near]):
+        options = track_options(found, [(g, last) for g in guesses], config)
+        assert options[label].prediction is near
+    # A fallback guess takes the blob only where no other guess reaches it.
+    fallback = _guess(30.0, 15.0, fallback=True)
+    assert track_options(found, [(near, last), (fallback, last)], config)[label].prediction is near
+    assert track_options(found, [(fallback, last)], config)[label].prediction is fallback
 
 
 def test_the_assignment_does_not_depend_on_the_order_of_the_tracks() -> None:
