@@ -63,7 +63,7 @@ class _Sums:
     ) -> None:
         self.fitted += 1
         kernel = np.ones((5, 5), np.uint8)
-        subframes = render_frame(frame, result, camera, n, config).subframes
+        subframes = render_frame(frame, result, camera, n, config.detect, config.render).subframes
         background = frame.background_pixels.float() / 255
         own = result.state.render_subframes(camera, background, n, config.render)
         streak = cv2.dilate((truth.masks.max(0) > 0.02).astype(np.uint8), kernel).astype(bool)

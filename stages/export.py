@@ -20,7 +20,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from sfb_video.config import CameraConfig, Config, RenderConfig
+from sfb_video.config import CameraConfig, Config, DetectConfig, RenderConfig
 from sfb_video.crop import Box
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.imageio import as_float
@@ -233,7 +233,8 @@ def render_frame(
     result: FrameResult,
     camera: PinholeCamera,
     n: int,
-    config: Config,
+    detect: DetectConfig,
+    render: RenderConfig,
     difference: np.ndarray | None = None,
 ) -> Rendered:
     """Render ``result`` over the background in the object's region and blend it into the
@@ -248,21 +249,21 @@ def render_frame(
     """
     if difference is None:
         difference = difference_image(frame.pixels, frame.background_pixels)
-    region = fitted_region(result.state, camera, difference, config.detect, frame.known)
+    region = fitted_region(result.state, camera, difference, detect, frame.known)
     box = region_box(region, streak_box(result, camera))
     x, y, w, h = box
     patch_bg = as_float(frame.background_pixels[:, y : y + h, x : x + w])
-    patches = render_patches(result.state, camera, box, patch_bg, n, config.render)
+    patches = render_patches(result.state, camera, box, patch_bg, n, render)
     weights = torch.from_numpy(region[y : y + h, x : x + w]).to(patches.device)
     blurred = patches.mean(0)
-    if n * config.render.steps_per_subframe < BLUR_POSES:
+    if n * render.steps_per_subframe < BLUR_POSES:
         # Few sub-frames average into a few sharp copies, not the frame's blur: the quality
         # signal would depend on the TSR factor.
-        size = _export_size(box, config.render)
+        size = _export_size(box, render)
         small_bg = _resize(patch_bg, size)
         camera_box = camera.crop(x, y, w, h, *size)
         blurred = patch_bg + _resize(
-            result.state.render_blurred(camera_box, small_bg, BLUR_POSES, config.render) - small_bg, (w, h)
+            result.state.render_blurred(camera_box, small_bg, BLUR_POSES, render) - small_bg, (w, h)
         )
     quality = explained(as_float(frame.pixels[:, y : y + h, x : x + w]), patch_bg, blurred, weights)
     sharp = Pasted(frame.pixels, [layer(frame.pixels, patches, box, weights)])
@@ -283,7 +284,7 @@ def composite(
     objects: list[tuple[FrameResult, Rendered]],
     camera: PinholeCamera,
     n: int,
-    config: Config,
+    render: RenderConfig,
 ) -> tuple[torch.Tensor, Pasted]:
     """Every object's rendering of one frame in one: I_hat (3, H, W) and the sub-frames, blended
     farthest first, so that where two objects' regions overlap the nearer is in front. An object
@@ -302,7 +303,7 @@ def composite(
             under = torch.stack([as_float(plate[k][:, y : y + h, x : x + w]) for k in range(n)])
             own = layer(
                 frame.pixels,
-                render_patches(result.state, camera, own.box, under, n, config.render),
+                render_patches(result.state, camera, own.box, under, n, render),
                 own.box,
                 own.weights,
             )
@@ -408,7 +409,9 @@ def frame_records(
             _object_record(frame, single, results, difference, camera, fps, n, config, diameter)
             for _, single in present
         )
-        reconstruction, subframes = composite(frame, [(o.result, o.rendered) for o in objects], camera, n, config)
+        reconstruction, subframes = composite(
+            frame, [(o.result, o.rendered) for o in objects], camera, n, config.render
+        )
         yield FrameRecord(
             frame, mask, boxes, objects, reconstruction, subframes, as_filmed(frame, subframes, config.camera)
         )
@@ -426,7 +429,7 @@ def _object_record(
     diameter: float | None,
 ) -> ObjectRecord:
     result, window = results.showing(single.key, single)
-    rendered = render_frame(frame, result, camera, n, config, difference)
+    rendered = render_frame(frame, result, camera, n, config.detect, config.render, difference)
     rows = list(trajectory_rows(result, camera, n, fps, config.video.exposure_fraction, diameter))
     record = _fit_record(result, float(rows[0]["speed_sizes_per_s"]), diameter)
     record["explained"] = rendered.explained

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import torch
 
-from sfb_video.config import Config
+from sfb_video.config import CameraConfig, Config, RenderConfig
 from sfb_video.errors import SfbError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.geometry.pose import pose_vertices
@@ -30,7 +30,9 @@ STRIP_VIEWS = 8
 """Views shown side by side in the PNG strip."""
 
 
-def turntable(state: ObjectState, views: int, config: Config, background: float = 1.0) -> torch.Tensor:
+def turntable(
+    state: ObjectState, views: int, camera: CameraConfig, render: RenderConfig, background: float = 1.0
+) -> torch.Tensor:
     """(views, 3, H, W) the mesh of ``state``, in its start orientation, turned about the vertical.
 
     Args:
@@ -38,14 +40,14 @@ def turntable(state: ObjectState, views: int, config: Config, background: float 
         background: grey level behind the object.
     """
     width, height = SIZE
-    camera = PinholeCamera.from_fov(width, height, config.camera.fov_y_deg)
-    depth = camera.fy / (0.5 * height) * 2 * float(state.vertices.norm(dim=-1).max())
+    pinhole = PinholeCamera.from_fov(width, height, camera.fov_y_deg)
+    depth = pinhole.fy / (0.5 * height) * 2 * float(state.vertices.norm(dim=-1).max())
     angles = torch.arange(views) * (2 * math.pi / views)
     axes = torch.stack((torch.zeros(views), angles, torch.zeros(views)), -1)
     rotations = axis_angle_to_matrix(axes) @ state.motion.rot0
     positions = torch.tensor([0.0, 0.0, depth]).expand(views, 3)
     with torch.no_grad():
-        out = MeshRenderer(camera, config.render)(
+        out = MeshRenderer(pinhole, render)(
             pose_vertices(state.vertices, rotations, positions), state.topology, state.texture
         )
     return out.rgb * out.alpha + (1 - out.alpha) * background
@@ -69,7 +71,7 @@ def write_novel_views(folder: Path, config: Config, frames: list[int], views: in
         keys = sorted(k for k in results if k.index in frames)
     written = []
     for key in keys:
-        images = turntable(results[key].state, views, config)
+        images = turntable(results[key].state, views, config.camera, config.render)
         ensure_folder(folder / NOVEL_VIEWS)
         path = novel_view_path(folder, key.index, key.track)
         with VideoWriter(path, 24.0, SIZE[0], SIZE[1], preset=OUTPUT_PRESET) as video:

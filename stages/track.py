@@ -26,7 +26,7 @@ from typing import TypeVar
 
 import torch
 
-from sfb_video.config import Config, DetectConfig, VideoConfig
+from sfb_video.config import Config, DetectConfig, TrackConfig, VideoConfig
 from sfb_video.errors import NoObjectError
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.results import FrameResult, load_followed
@@ -174,12 +174,16 @@ class Tracking:
         """Take frame ``frame``'s blobs ``found``: match, start, fit, look back, and write what
         no later frame can change."""
         config, buffer = self.config, self.buffer
-        matched = match_tracks(found, [(t, t.predictions(frame.index)) for t in self.live], config)
+        matched = match_tracks(found, [(t, t.predictions(frame.index)) for t in self.live], config.detect, config.track)
         for first in matched.directed:
             buffer.directed(first)  # a track's first frame, found to run the other way
         self.live = [t for t in self.live if t.previous is not None]
-        new_track = functools.partial(Tracker, self.camera, config, self.numbers)
-        objects, untracked = _with_new_tracks(found, matched, self.live, self.limit, new_track, config)
+        new_track = functools.partial(
+            Tracker, self.camera, config.detect, config.track, config.video.exposure_fraction, self.numbers
+        )
+        objects, untracked = _with_new_tracks(
+            found, matched, self.live, self.limit, new_track, config.detect, config.track
+        )
         note = f"{untracked} other moving object(s) seen, not tracked (video.max_objects)" if untracked else ""
         merged = matched.merged
         results, fits, proven = _fit_claims(
@@ -195,7 +199,17 @@ class Tracking:
         if self.looks_back:
             self.held.append(held_blobs(frame, found, fits, config.crop))
         for tracker in proven:
-            look_back_into(tracker, list(self.held), buffer, self.saved, self.camera, config, self.refit)
+            look_back_into(
+                tracker,
+                list(self.held),
+                buffer,
+                self.saved,
+                self.camera,
+                config.detect,
+                config.track,
+                config.video,
+                self.refit,
+            )
         # A frame may change while a track's look back can reach it (the frames ``held``), and a
         # track's first frame until its second fixes its time direction.
         opened = any(t.length == 1 and t.previous is not None and t.previous.index == frame.index for t in self.live)
@@ -296,13 +310,14 @@ def _with_new_tracks(
     live: list[Tracker],
     limit: float,
     new_track: Callable[[], Tracker],
-    config: Config,
+    detect: DetectConfig,
+    track: TrackConfig,
 ) -> tuple[list[Claim], int]:
     """The tracks' claims and a new track's on each blob left that is an object of its own
     (largest first, while fewer than ``limit`` tracks are live), after giving back to its track a
     piece of a streak split off beside it that no track wants and is no object of its own; and
     how many objects of their own were left untracked (``video.max_objects``)."""
-    fresh = new_objects(found, matched.taken, config, alone=not live)
+    fresh = new_objects(found, matched.taken, detect, track, alone=not live)
     claimed = matched.taken | matched.wanted | set(fresh)
     free = {k for k in range(1, found.count) if k not in claimed}
     for claim in matched.claims:

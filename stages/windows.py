@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 import torch
 
-from sfb_video.config import Config, CropConfig
+from sfb_video.config import Config, CropConfig, DetectConfig, RenderConfig
 from sfb_video.crop import Box, box_mask, make_crop, masks_onto
 from sfb_video.errors import DivergenceError
 from sfb_video.fitting.path import Seed
@@ -207,17 +207,21 @@ def fit_track_window(
         pose = config.joint.refine == "pose"
         result = refine_frames(result, frames, config.fit, config.render, pose, steps, held=touched)
     explained = {
-        i: (_quality(single(i).state, crops[i], config), _quality(result.state(i), crops[i], config)) for i in shown
+        i: (
+            _quality(single(i).state, crops[i], config.detect, config.render),
+            _quality(result.state(i), crops[i], config.detect, config.render),
+        )
+        for i in shown
     }
     drop = sum(b - a for b, a in explained.values()) / len(explained)
     return SavedWindow(track, result, before, explained, drop <= config.joint.max_explained_drop)
 
 
-def _quality(state: ObjectState, frame: WindowFrame, config: Config) -> float:
+def _quality(state: ObjectState, frame: WindowFrame, detect: DetectConfig, render: RenderConfig) -> float:
     crop = frame.crop
     # A single-frame fit is loaded on the CPU; the crop is where the fit runs.
     state = state.to(crop.image.device)
-    return fit_quality(state, crop.image, crop.background, crop.camera, config.detect, config.render)
+    return fit_quality(state, crop.image, crop.background, crop.camera, detect, render)
 
 
 @timed("joint")

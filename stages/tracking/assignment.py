@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from sfb_video.config import Config
+from sfb_video.config import DetectConfig, TrackConfig
 from sfb_video.results import FrameResult
 from sfb_video.stages.detect import FrameBlobs
 from sfb_video.stages.tracking.cost import Option, track_options
@@ -88,11 +88,13 @@ class Matched:
     directed: list[FrameResult]
 
 
-def _contest(options: list[dict[int, Option]], lengths: list[int], config: Config) -> list[Option | None]:
+def _contest(
+    options: list[dict[int, Option]], lengths: list[int], detect: DetectConfig, track: TrackConfig
+) -> list[Option | None]:
     """The first round (module docstring): no fallback guess, no sharing."""
-    edge = math.log1p(config.detect.gate**2)
+    edge = math.log1p(detect.gate**2)
     plain = [{k: o for k, o in own.items() if not o.prediction.fallback} for own in options]
-    return assign(plain, [edge if n >= 2 else config.track.young_coast_cost for n in lengths])
+    return assign(plain, [edge if n >= 2 else track.young_coast_cost for n in lengths])
 
 
 def _left_over(
@@ -100,7 +102,8 @@ def _left_over(
     trackers: list[Tracker],
     options: list[dict[int, Option]],
     first: list[Option | None],
-    config: Config,
+    detect: DetectConfig,
+    track: TrackConfig,
 ) -> dict[int, list[Claim]]:
     """The second round (module docstring) and the claims of both rounds, by blob, shared out."""
     held = {c.label: trackers[i] for i, c in enumerate(first) if c is not None}
@@ -115,12 +118,12 @@ def _left_over(
             else {}
             for i in rest
         ]
-        second = assign(allowed, [NOTHING_LEFT] * len(rest), shares, config.track.share_cost)
+        second = assign(allowed, [NOTHING_LEFT] * len(rest), shares, track.share_cost)
         holders: dict[int, list[Claim]] = {}
         for i, option in [*enumerate(first), *zip(rest, second, strict=True)]:
             if option is not None:
                 holders.setdefault(option.label, []).append(Claim(trackers[i], option.label, 0, option.prediction))
-        failed = [c for c in holders.values() if len(c) > 1 and not shared_out(found, c, config.detect.min_area_px)]
+        failed = [c for c in holders.values() if len(c) > 1 and not shared_out(found, c, detect.min_area_px)]
         if not failed:
             return holders
         for claims in failed:
@@ -132,7 +135,10 @@ def _left_over(
 
 
 def match_tracks(
-    found: FrameBlobs, asked: list[tuple[Tracker, list[tuple[Prediction, FrameResult]]]], config: Config
+    found: FrameBlobs,
+    asked: list[tuple[Tracker, list[tuple[Prediction, FrameResult]]]],
+    detect: DetectConfig,
+    track: TrackConfig,
 ) -> Matched:
     """Each live track's blob among a frame's (``asked``: each track and its predictions,
     :meth:`Tracker.predictions`), in two rounds (module docstring). A blob several tracks take is
@@ -141,9 +147,9 @@ def match_tracks(
     ends."""
     asked = sorted(asked, key=lambda a: (a[0].number is None, a[0].number or 0))
     trackers = [t for t, _ in asked]
-    options = [track_options(found, predictions, config) for _, predictions in asked]
-    first = _contest(options, [t.length for t in trackers], config)
-    holders = _left_over(found, trackers, options, first, config)
+    options = [track_options(found, predictions, detect, track) for _, predictions in asked]
+    first = _contest(options, [t.length for t in trackers], detect, track)
+    holders = _left_over(found, trackers, options, first, detect, track)
     wanted = {min(own.values(), key=lambda o: o.cost).label for own in options if own}
     matched = Matched([], [], set(holders), wanted, [])
     for tracker, own in zip(trackers, options, strict=True):
@@ -158,7 +164,7 @@ def match_tracks(
             continue
         option = own[claim.label]
         if not claim.shared_with:
-            claim.others = option.rivals(found, config.detect)
+            claim.others = option.rivals(found, detect)
         if (reversed_first := tracker.found(option.last)) is not None:
             matched.directed.append(reversed_first)
         matched.claims.append(claim)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from sfb_video.config import Config, DetectConfig
+from sfb_video.config import DetectConfig, TrackConfig
 from sfb_video.results import FrameResult
 from sfb_video.stages.detect import FrameBlobs, blob_cost, rivals
 from sfb_video.stages.types import Prediction
@@ -29,7 +29,7 @@ class Option:
 
 
 def track_options(
-    found: FrameBlobs, predictions: list[tuple[Prediction, FrameResult]], config: Config
+    found: FrameBlobs, predictions: list[tuple[Prediction, FrameResult]], detect: DetectConfig, track: TrackConfig
 ) -> dict[int, Option]:
     """Each blob within the gate of one of a track's ``predictions`` (:meth:`Tracker.predictions`),
     taken by the guess whose centre lands nearest it in pixels, at that guess's cost; by a
@@ -42,9 +42,9 @@ def track_options(
     options: dict[int, Option] = {}
     nearest: dict[int, tuple[bool, float]] = {}
     for prediction, last in predictions:
-        tier = config.track.fallback_cost if prediction.fallback else 0.0
+        tier = track.fallback_cost if prediction.fallback else 0.0
         for label in range(1, found.count):
-            cost = blob_cost(found, label, prediction, config.detect)
+            cost = blob_cost(found, label, prediction, detect)
             if cost is None:
                 continue
             x, y = (float(v) for v in found.centroids[label])

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from sfb_video.config import Config, CropConfig, VideoConfig
+from sfb_video.config import CropConfig, DetectConfig, TrackConfig, VideoConfig
 from sfb_video.crop import Box, crop_box, mask_box
 from sfb_video.defmo import INPUT_SIZE
 from sfb_video.errors import NoObjectError
@@ -124,7 +124,9 @@ def look_back_into(
     buffer: FrameBuffer,
     saved: set[tuple[int, int]],
     camera: PinholeCamera,
-    config: Config,
+    detect: DetectConfig,
+    track: TrackConfig,
+    video: VideoConfig,
     refit: Refit,
 ) -> None:
     """A track just fitted in enough frames to be kept (:func:`proven_length`) looks back for its object
@@ -146,7 +148,7 @@ def look_back_into(
     assert first is not None  # the track's first frame is held
     own_area = mine[0][1]
     later = first
-    for index in range(first.index - 1, first.index - 1 - config.track.look_back, -1):
+    for index in range(first.index - 1, first.index - 1 - track.look_back, -1):
         prediction = glide(first, last, index, camera)
         best: tuple[float, Held, list[np.ndarray]] | None = None
         for blob in by_index.get(index, []):
@@ -157,12 +159,12 @@ def look_back_into(
             ahead = [p for p in predicted if p is not None]
             if len(ahead) < len(predicted):
                 continue
-            parts = share_out(blob.blob, [*ahead, prediction], config.detect.min_area_px, blob.region[:2])
+            parts = share_out(blob.blob, [*ahead, prediction], detect.min_area_px, blob.region[:2])
             share = 0.0 if parts is None else float(parts[-1].sum())
             # The blob is larger than its tracks' own blobs of the next frame by about this
             # object: not one object's blob that another track's path happens to pass.
             grown = float(blob.blob.sum()) - _areas_after(blob, by_index.get(index + 1, []))
-            enough = config.track.look_back_share * own_area
+            enough = track.look_back_share * own_area
             if parts is not None and min(share, grown) >= enough and (best is None or share > best[0]):
                 best = (share, blob, parts)
         if best is None:
@@ -178,7 +180,7 @@ def look_back_into(
         detections = [blob.detection(part) for part in parts]
         try:
             results = [
-                _refitted(frame, detection, fit, start, buffer, camera, config, refit, found_late)
+                _refitted(frame, detection, fit, start, buffer, camera, video, refit, found_late)
                 for fit, detection, start in zip(fits, detections, starts, strict=True)
             ]
         except NoObjectError:
@@ -225,7 +227,7 @@ def _refitted(
     start: FrameResult | None,
     buffer: FrameBuffer,
     camera: PinholeCamera,
-    config: Config,
+    video: VideoConfig,
     refit: Refit,
     found_late: bool,
 ) -> FrameResult:
@@ -235,7 +237,7 @@ def _refitted(
     if found_late:
         return load_result(FrameKey(frame.index, fit.number).path(buffer.folder))
     result = refit(frame, detection, start, fit.earlier)
-    return _joined(dataclasses.replace(result, track=fit.number), fit.start, buffer, camera, config.video)
+    return _joined(dataclasses.replace(result, track=fit.number), fit.start, buffer, camera, video)
 
 
 def _first_prediction(index: int, fit: HeldFit, buffer: FrameBuffer, camera: PinholeCamera) -> Prediction | None:

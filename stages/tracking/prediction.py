@@ -8,7 +8,7 @@ import math
 import numpy as np
 import torch
 
-from sfb_video.config import Config
+from sfb_video.config import DetectConfig, TrackConfig
 from sfb_video.crop import Box
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.model.motion import Motion, continue_motion
@@ -85,21 +85,23 @@ def glide(at: FrameResult, other: FrameResult, index: int, camera: PinholeCamera
     return Prediction(on(moved.centre), moved.diameter, None, ends)
 
 
-def lags(three_d: Prediction, paced: Prediction, last: tuple[float, float], config: Config) -> bool:
+def lags(
+    three_d: Prediction, paced: Prediction, last: tuple[float, float], detect: DetectConfig, track: TrackConfig
+) -> bool:
     """Whether the 3D guess falls short of the image-pace guess along the pace's line: more than
     ``track.lag_diameters`` of the object's diameters from it, and either hardly on from the
     ``last`` streak's centre (under one diameter), or on from it the pace's way, less far, and
     parallel to its line (``detect.parallel_deg``: a ball swung on a circle, where the 3D guess
     turns as the object turned, and the pace does not)."""
     gap = math.hypot(three_d.centre[0] - paced.centre[0], three_d.centre[1] - paced.centre[1])
-    if gap <= config.track.lag_diameters * max(paced.diameter, 1.0):
+    if gap <= track.lag_diameters * max(paced.diameter, 1.0):
         return False
     step = np.subtract(three_d.centre, last)
     pace = np.subtract(paced.centre, last)
     if np.linalg.norm(step) < max(paced.diameter, 1.0):
         return True  # hardly on from the last streak: its direction says nothing
     on = float(step @ pace) > 0 and np.linalg.norm(step) < np.linalg.norm(pace)
-    return on and parallel(step / np.linalg.norm(step), pace / np.linalg.norm(pace), config.detect.parallel_deg)
+    return on and parallel(step / np.linalg.norm(step), pace / np.linalg.norm(pace), detect.parallel_deg)
 
 
 def at_edge(box: Box, camera: PinholeCamera) -> bool:

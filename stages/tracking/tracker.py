@@ -7,7 +7,7 @@ import dataclasses
 from collections import Counter
 from dataclasses import dataclass
 
-from sfb_video.config import Config
+from sfb_video.config import DetectConfig, TrackConfig
 from sfb_video.geometry.camera import PinholeCamera
 from sfb_video.results import FrameResult
 from sfb_video.stages.detect import (
@@ -53,11 +53,20 @@ class Tracker:
         previous: the track's last fitted frame (the warm start of the next); earlier: the one
             before it; colour: the chromaticity of the track's blobs; length: its fitted frames;
             number: the track's number (None before its first frame); numbers: where the
-            numbers of new tracks come from (shared by the trackers of one clip).
+            numbers of new tracks come from (shared by the trackers of one clip); detect,
+            track: the sections its guesses and its life follow; exposure_fraction: the
+            video's (``video.exposure_fraction``).
     """
 
-    def __init__(self, camera: PinholeCamera, config: Config, numbers: TrackNumbers | None = None) -> None:
-        self.camera, self.config = camera, config
+    def __init__(
+        self,
+        camera: PinholeCamera,
+        detect: DetectConfig,
+        track: TrackConfig,
+        exposure_fraction: float,
+        numbers: TrackNumbers | None = None,
+    ) -> None:
+        self.camera, self.detect, self.track, self.exposure_fraction = camera, detect, track, exposure_fraction
         self.numbers = TrackNumbers() if numbers is None else numbers
         self.previous: FrameResult | None = None
         self.earlier: FrameResult | None = None
@@ -87,7 +96,7 @@ class Tracker:
         if self.coasting and self.earlier is not None:
             return [(self._glided(index), self.previous)]
         options = [self.previous, self.previous.reversed()] if self.length == 1 else [self.previous]
-        e = self.config.video.exposure_fraction
+        e = self.exposure_fraction
         predicted = [
             (dataclasses.replace(predict(continued(o, self.earlier, index, e), self.camera), colour=self.colour), o)
             for o in options
@@ -99,7 +108,7 @@ class Tracker:
             # (:mod:`~sfb_video.stages.tracking.cost`).
             glided = self._glided(index)
             last = predict(self.previous.state.motion, self.camera).centre
-            if self._clean_pace() and lags(predicted[0][0], glided, last, self.config):
+            if self._clean_pace() and lags(predicted[0][0], glided, last, self.detect, self.track):
                 # The two guesses part: the image pace from two whole streaks is the surer, and
                 # the lagging 3D guess would land on whatever lies behind. It is still followed
                 # where the pace finds nothing: an object that landed stops.
@@ -129,7 +138,7 @@ class Tracker:
         track's blob: the next frame is predicted from the track's last clean one, for at most
         ``track.max_coast`` frames of streaks merged or shared."""
         self.coasting += 1
-        if self.coasting > self.config.track.max_coast:
+        if self.coasting > self.track.max_coast:
             self.lose()
 
     def found(self, followed: FrameResult | None) -> FrameResult | None:
@@ -165,14 +174,14 @@ class Tracker:
             result = dataclasses.replace(result, track=self.number)
         reversed_previous = None
         if self.previous is not None:
-            e = self.config.video.exposure_fraction
+            e = self.exposure_fraction
             before, result = join(self.previous, result, self.camera, e, self.length == 1 and not shared)
             if before is not self.previous:
                 reversed_previous = before
         if shared and self.previous is not None:
             self.coast()
             return self.number, result, reversed_previous
-        self.colour = _blend(self.colour if self.length else None, colour, self.config.track.colour_memory)
+        self.colour = _blend(self.colour if self.length else None, colour, self.track.colour_memory)
         self.earlier, self.previous, self.length, self.coasting = self.previous, result, self.length + 1, 0
         return self.number, result, reversed_previous
 
@@ -181,14 +190,14 @@ class Tracker:
         self.previous, self.length, self.coasting = None, 0, 0
 
 
-def new_objects(found: FrameBlobs, taken: set[int], config: Config, alone: bool) -> list[int]:
+def new_objects(found: FrameBlobs, taken: set[int], detect: DetectConfig, track: TrackConfig, alone: bool) -> list[int]:
     """The labels of the blobs no track took that are objects of their own, largest first.
 
     Beside another track (when ``alone``, no track live, every blob but the largest; otherwise
     every one), a blob must also be an object of its own by :meth:`FrameBlobs.own_object` (not
     an arm's shred, not a shadow)."""
     areas = [found.area(k) for k in range(1, found.count)]
-    floor = max(config.detect.min_area_px, config.track.other_share * max(areas, default=0.0))
+    floor = max(detect.min_area_px, track.other_share * max(areas, default=0.0))
     fresh = [k for k in range(1, found.count) if k not in taken and found.area(k) >= floor]
     fresh.sort(key=lambda k: (-found.area(k), k))
     return [k for n, k in enumerate(fresh) if (alone and n == 0) or found.own_object(k)]

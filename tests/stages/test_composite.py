@@ -44,7 +44,7 @@ def _ghost(clip: SyntheticClip, result: FrameResult) -> float:
     energy there (1: the input's streak left whole, 0: none of it)."""
     truth = clip.truth[0]
     frame = _frame(clip)
-    subframes = render_frame(frame, result, clip.camera, N, CONFIG).subframes
+    subframes = render_frame(frame, result, clip.camera, N, CONFIG.detect, CONFIG.render).subframes
     background = frame.background_pixels.float() / 255
     own = result.state.render_subframes(clip.camera, background, N, CONFIG.render)
     streak = truth.masks.max(0) > 0.05
@@ -77,7 +77,9 @@ def test_outside_the_region_the_frame_is_kept_and_the_join_has_no_seam(clip: Syn
     # A background that differs from the frame everywhere by 6 grey levels (a median off by a
     # lighting change): the old box showed as a rectangle; the region must blend into the frame.
     off = dataclasses.replace(frame, background_pixels=(frame.background_pixels.int() + 6).clamp(0, 255).byte())
-    sub = render_frame(off, partial_fit(clip, 0, 1.0), clip.camera, N, CONFIG).subframes[0].float()
+    sub = (
+        render_frame(off, partial_fit(clip, 0, 1.0), clip.camera, N, CONFIG.detect, CONFIG.render).subframes[0].float()
+    )
     changed = (sub - frame.pixels.float()).abs().amax(0)
     region = changed > 0
     assert 0 < int(region.sum()) < 0.5 * region.numel()
@@ -91,8 +93,8 @@ def test_outside_the_region_the_frame_is_kept_and_the_join_has_no_seam(clip: Syn
 
 def test_explained_is_one_for_the_true_fit_and_low_for_a_fragment(clip: SyntheticClip) -> None:
     frame = _frame(clip)
-    whole = render_frame(frame, partial_fit(clip, 0, 1.0), clip.camera, N, CONFIG).explained
-    half = render_frame(frame, partial_fit(clip, 0, 0.5), clip.camera, N, CONFIG).explained
+    whole = render_frame(frame, partial_fit(clip, 0, 1.0), clip.camera, N, CONFIG.detect, CONFIG.render).explained
+    half = render_frame(frame, partial_fit(clip, 0, 0.5), clip.camera, N, CONFIG.detect, CONFIG.render).explained
     assert whole > 0.75 and half < 0.3  # measured 0.83 and -0.07, whatever the TSR factor
 
 
@@ -106,9 +108,9 @@ def test_where_two_objects_overlap_the_nearer_is_in_front(clip: SyntheticClip) -
     motion = dataclasses.replace(state.motion, x0=0.8 * state.motion.x0, dx=0.8 * state.motion.dx)
     far = dataclasses.replace(far, state=dataclasses.replace(state, texture=red))
     near = dataclasses.replace(far, state=dataclasses.replace(state, texture=blue, motion=motion), track=1)
-    objects = [(r, render_frame(frame, r, clip.camera, N, CONFIG)) for r in (near, far)]
-    _, subframes = export.composite(frame, objects, clip.camera, N, CONFIG)
-    _, again = export.composite(frame, objects[::-1], clip.camera, N, CONFIG)
+    objects = [(r, render_frame(frame, r, clip.camera, N, CONFIG.detect, CONFIG.render)) for r in (near, far)]
+    _, subframes = export.composite(frame, objects, clip.camera, N, CONFIG.render)
+    _, again = export.composite(frame, objects[::-1], clip.camera, N, CONFIG.render)
     _, positions = state.motion.at(exposure_times(N))
     for k in range(N):
         u, v = (round(float(c)) for c in clip.camera.project(positions[k : k + 1])[0][0])

@@ -137,6 +137,10 @@ def test_tracks_too_short_to_be_objects_are_dropped_unless_none_is_longer() -> N
     assert short_tracks_dropped(short, 1) == short
 
 
+def _tracker(config: Config, numbers: TrackNumbers | None = None) -> Tracker:
+    return Tracker(CAMERA, config.detect, config.track, config.video.exposure_fraction, numbers)
+
+
 def _fitted(index: int, x0: tuple[float, float, float], dx: tuple[float, float, float]) -> FrameResult:
     vertices, topology = load_prototype("sphere")
     motion = Motion(torch.tensor(x0), torch.tensor(dx), torch.eye(3), torch.zeros(3))
@@ -150,7 +154,7 @@ def test_a_track_goes_on_where_its_streak_moved_on_though_its_fits_lag_on_speed(
     # is fitted as 0.1 units long, while the object came 1.5 units down from one frame to the next.
     # Its 3D motion continued lands short, beside another object; the image's pace lands on it.
     config = load_config("fast")
-    tracker = Tracker(CAMERA, config)
+    tracker = _tracker(config)
     tracker.earlier, tracker.previous = (
         _fitted(0, (0.0, -2.0, 8.0), (0.0, 0.1, 0.0)),
         _fitted(1, (0.0, -0.5, 8.0), (0.0, 0.1, 0.0)),
@@ -166,7 +170,7 @@ def test_a_track_goes_on_where_its_streak_moved_on_though_its_fits_lag_on_speed(
     for cx, cy in (own, other):
         moving |= (xx - cx) ** 2 + (yy - cy) ** 2 <= radius**2
     found = frame_blobs(torch.from_numpy(moving), config.detect)
-    (claim,) = match_tracks(found, [(tracker, tracker.predictions(2))], config).claims
+    (claim,) = match_tracks(found, [(tracker, tracker.predictions(2))], config.detect, config.track).claims
     x, y = found.centroids[claim.label]
     assert math.hypot(x - own[0], y - own[1]) < 1.5, (x, y, own, other)
 
@@ -175,7 +179,7 @@ def test_a_track_paced_by_two_whole_streaks_follows_the_pace_over_a_lagging_3d_g
     # falling_three frame 13: the grey object's 3D guess lagged onto the red end's streak, which
     # lay nearer it than the grey object's own blob lay to its paced guess, and took it.
     config = load_config("fast")
-    tracker = Tracker(CAMERA, config)
+    tracker = _tracker(config)
     whole = (100, 100, 8, 8)  # neither streak cut off at the frame's edge
     tracker.earlier, tracker.previous = (
         dataclasses.replace(_fitted(0, (0.0, -3.0, 8.0), (0.0, 0.1, 0.0)), detection_box=whole),
@@ -194,7 +198,7 @@ def test_a_track_paced_by_two_whole_streaks_follows_the_pace_over_a_lagging_3d_g
         for cx, cy in centres:
             moving |= (xx - cx) ** 2 + (yy - cy) ** 2 <= radius**2
         found = frame_blobs(torch.from_numpy(moving), config.detect)
-        (claim,) = match_tracks(found, [(tracker, tracker.predictions(2))], config).claims
+        (claim,) = match_tracks(found, [(tracker, tracker.predictions(2))], config.detect, config.track).claims
         assert claim.prediction is not None
         return (*found.centroids[claim.label], claim.prediction.fallback)
 
@@ -215,7 +219,7 @@ def test_a_track_paced_by_two_whole_streaks_follows_the_pace_over_a_lagging_3d_g
 
 def _track(config: Config, number: int, length: int) -> Tracker:
     """A track of ``length`` frames numbered ``number`` (its last frame a stand-in)."""
-    tracker = Tracker(CAMERA, config)
+    tracker = _tracker(config)
     tracker.number, tracker.length = number, length
     tracker.previous = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
     return tracker
@@ -247,7 +251,7 @@ def _match(found: FrameBlobs, config: Config, tracks: list[tuple[int, int, list[
     for number, length, guesses in tracks:
         tracker = _track(config, number, length)
         asked.append((tracker, [(g, tracker.previous) for g in guesses]))
-    return match_tracks(found, asked, config)
+    return match_tracks(found, asked, config.detect, config.track)
 
 
 def test_a_track_of_one_frame_gives_way_to_a_longer_one_with_no_other_blob() -> None:
@@ -268,7 +272,9 @@ def test_a_track_of_one_frame_gives_way_to_a_longer_one_with_no_other_blob() -> 
     assert _taken(_match(found, config, [(0, 5, far), piece]))[0] == mine
 
 
-def test_a_track_whose_blob_another_takes_goes_to_a_blob_left_in_its_gate_else_shares() -> None:
+def test_a_track_whose_blob_another_takes_goes_to_a_blob_left_in_its_gate_else_shares_where_its_streak_covers_it() -> (
+    None
+):
     # Three objects: a track's guess lagged between the streak another track took and its own.
     config = load_config("fast")
     found = _blobs(config, [(10, 5, 20, 10), (10, 40, 20, 10)])
@@ -294,12 +300,12 @@ def test_a_blob_is_taken_by_the_track_s_guess_that_lands_nearest_it_in_pixels() 
     assert blob_cost(found, label, vague, config.detect) < blob_cost(found, label, near, config.detect)
     last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
     for guesses in ([near, vague], [vague, near]):
-        options = track_options(found, [(g, last) for g in guesses], config)
+        options = track_options(found, [(g, last) for g in guesses], config.detect, config.track)
         assert options[label].prediction is near
     # A fallback guess takes the blob only where no other guess reaches it.
     fallback = _guess(30.0, 15.0, fallback=True)
-    assert track_options(found, [(near, last), (fallback, last)], config)[label].prediction is near
-    assert track_options(found, [(fallback, last)], config)[label].prediction is fallback
+    assert track_options(found, [(near, last), (fallback, last)], config.detect, config.track)[label].prediction is near
+    assert track_options(found, [(fallback, last)], config.detect, config.track)[label].prediction is fallback
 
 
 def test_the_assignment_does_not_depend_on_the_order_of_the_tracks() -> None:
@@ -342,7 +348,8 @@ def _merge(found: FrameBlobs, config: Config, holder: Tracker, merged: Tracker) 
             (merged, [(Prediction((30.0, 18.0), 10.0), merged.previous)]),
             (holder, [(Prediction((30.0, 15.0), 10.0), holder.previous)]),
         ],
-        config,
+        config.detect,
+        config.track,
     )
 
 
@@ -362,7 +369,9 @@ def test_a_track_whose_streak_merged_into_another_s_coasts_then_ends() -> None:
         assert merged.length == 0 and merged.previous is None  # ended
     # A track with no blob in its gate ends at once.
     lost = _track(config, 2, 5)
-    matched = match_tracks(found, [(lost, [(Prediction((100.0, 50.0), 5.0), lost.previous)])], config)
+    matched = match_tracks(
+        found, [(lost, [(Prediction((100.0, 50.0), 5.0), lost.previous)])], config.detect, config.track
+    )
     assert not matched.claims and not matched.merged and lost.previous is None
 
 
@@ -378,7 +387,7 @@ def test_a_piece_of_a_track_s_streak_split_off_as_an_object_beside_it_is_joined_
     mine, on, beside = by_x[17], by_x[33], by_x[19]
     found = FrameBlobs(count, labels, stats, centroids, joined=np.array([0, mine, mine, mine]))
     prediction = Prediction((25.0, 13.0), 9.0, ends=((40.0, 14.0), (10.0, 12.0)))
-    claim = Claim(Tracker(CAMERA, load_config("fast")), mine, 0, prediction)
+    claim = Claim(_tracker(load_config("fast")), mine, 0, prediction)
     assert on_its_streak(found, claim, {on, beside}) == [on]
     assert on_its_streak(found, claim, {beside}) == []  # another track took it or wants it
     assert on_its_streak(dataclasses.replace(found, joined=None), claim, {on, beside}) == []
@@ -415,8 +424,8 @@ def test_beside_a_tracked_object_only_objects_of_their_own_start_tracks() -> Non
     box = {k: tuple(int(v) for v in found.stats[k, :4]) for k in range(1, found.count)}
     label = {b: k for k, b in box.items()}
     # No track yet: the largest blob starts one whatever it is, as with one object tracked.
-    assert [box[k] for k in new_objects(found, set(), config, alone=True)] == [shadow, ball, other]
-    assert [box[k] for k in new_objects(found, {label[ball]}, config, alone=False)] == [other]
+    assert [box[k] for k in new_objects(found, set(), config.detect, config.track, alone=True)] == [shadow, ball, other]
+    assert [box[k] for k in new_objects(found, {label[ball]}, config.detect, config.track, alone=False)] == [other]
 
 
 def test_a_blob_three_streaks_touch_in_is_shared_out_among_all_three() -> None:
@@ -478,7 +487,7 @@ def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(tmp_path: Path)
         proven_length(config.video) == 3 and proven_length(load_config("fast", ["video.min_track_frames=1"]).video) == 2
     )
     numbers = TrackNumbers()
-    owner, late = Tracker(CAMERA, config, numbers), Tracker(CAMERA, config, numbers)
+    owner, late = _tracker(config, numbers), _tracker(config, numbers)
     owner.number, late.number = 0, 1
     first = dataclasses.replace(_fitted(2, (0.0, 0.0, 8.0), (0.1, 0.0, 0.0)), track=1)
     last = dataclasses.replace(_fitted(4, (0.6, 0.0, 8.0), (0.1, 0.0, 0.0)), track=1)
@@ -518,7 +527,7 @@ def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(tmp_path: Path)
         ]
         fitted.clear()
         buffer = FrameBuffer(tmp_path)
-        look_back_into(late, frames, buffer, set(), CAMERA, config, fit)
+        look_back_into(late, frames, buffer, set(), CAMERA, config.detect, config.track, config.video, fit)
         assert fitted == looked  # refitted (and given up) only where the blob grew by the object
         assert buffer.close() == []  # nothing restated
     assert late.length == 3 and saved_frames(tmp_path) == {(2, 1), (4, 1)}
@@ -526,7 +535,7 @@ def test_a_track_looks_back_only_into_a_blob_grown_by_its_object(tmp_path: Path)
 
 def test_a_track_coasts_for_its_config_s_frames_then_ends() -> None:
     for max_coast in (0, 2, 5):
-        tracker = Tracker(CAMERA, load_config("default", [f"track.max_coast={max_coast}"]))
+        tracker = _tracker(load_config("default", [f"track.max_coast={max_coast}"]))
         tracker.length = 3
         for _ in range(max_coast):
             tracker.coast()
