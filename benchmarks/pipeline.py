@@ -1,9 +1,11 @@
 """The whole pipeline on one fixed clip: frames per second, seconds per stage, peak memory.
 
-    python -m benchmarks.pipeline [--config default] [--set KEY=VALUE ...] [--device cpu]
+    python -m benchmarks.pipeline [--size 640x480] [--config default] [--set KEY=VALUE ...] [--device cpu]
 
-The clip (generated on each run, bit-identical every time): 30 frames of 640x480, a ball flying
-through frames 0-13 and gone after, then a box through frames 16-29, over one photo: two tracks.
+The clip (generated on each run, bit-identical every time): 30 frames, a ball flying through
+frames 0-13 and gone after, then a box through frames 16-29, over one photo: two tracks. It is
+generated 640 px wide at the asked size's aspect and, for a larger ``--size`` (1920x1080,
+3840x2160), scaled up to it, so that the objects cover the same share of every size.
 It is written as H.264 and processed by ``sfb-video process``'s own code with the difference
 masks, in a fresh child process, which reports its wall time, the seconds of each stage
 (:mod:`sfb_video.timing`: each stage's own time, those nested in it taken out) and its peak
@@ -20,6 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 
@@ -35,24 +38,43 @@ STAGES = ("read", "register", "background", "detect", "fit", "joint", "export", 
 JOINT = ("path", "shape trial", "spin search", "steps", "refine")
 """The joint fit's parts (:mod:`sfb_video.fitting.window`), shown under it; "joint" alone is the
 rest of it (crops, scoring the windows, saving)."""
-_COMMON = {"width": 640, "height": 480, "num_frames": FRAMES, "exposure_fraction": 0.8, "speed_range": (1.2, 1.5)}
+GENERATED_WIDTH = 640
+_COMMON = {"num_frames": FRAMES, "exposure_fraction": 0.8, "speed_range": (1.2, 1.5)}
 
 
-def clip_specs() -> tuple[ClipSpec, ClipSpec]:
-    """The ball (frames 0-13) and the box (16-29). One seed: the same photo and the same noise
-    in both, so each frame is taken whole from the clip whose object it shows."""
-    ball = ClipSpec(shape="ball", absent_frames=tuple(range(14, FRAMES)), size_px_range=(20.0, 24.0), **_COMMON)
-    box = ClipSpec(shape="box", absent_frames=tuple(range(16)), size_px_range=(22.0, 26.0), **_COMMON)
+def clip_specs(width: int = 640, height: int = 480) -> tuple[ClipSpec, ClipSpec]:
+    """The ball (frames 0-13) and the box (16-29) at ``width`` x ``height``. One seed: the same
+    photo and the same noise in both, so each frame is taken whole from the clip whose object it
+    shows."""
+    size = {"width": width, "height": height, **_COMMON}
+    ball = ClipSpec(shape="ball", absent_frames=tuple(range(14, FRAMES)), size_px_range=(20.0, 24.0), **size)
+    box = ClipSpec(shape="box", absent_frames=tuple(range(16)), size_px_range=(22.0, 26.0), **size)
     return ball, box
 
 
-def write_clip(path: Path) -> None:
-    """The benchmark's clip as H.264 at 30 fps."""
-    ball, box = (generate_clip(spec) for spec in clip_specs())
-    with VideoWriter(path, 30.0, 640, 480) as video:
+def write_clip(path: Path, size: tuple[int, int] = (640, 480)) -> None:
+    """The benchmark's clip as H.264 at 30 fps, ``size`` (width, height): generated
+    :data:`GENERATED_WIDTH` wide at its aspect, scaled up where it is larger."""
+    width, height = size
+    small = (min(width, GENERATED_WIDTH), round(min(width, GENERATED_WIDTH) * height / width))
+    ball, box = (generate_clip(spec) for spec in clip_specs(*small))
+    with VideoWriter(path, 30.0, width, height) as video:
         for k in range(FRAMES):
             frame = box.frames[k] if k in box.spec.present_frames else ball.frames[k]
+            if small != size:
+                frame = cv2.resize(frame, size, interpolation=cv2.INTER_LINEAR)
             video.write(np.ascontiguousarray(frame))
+
+
+def frame_size(text: str) -> tuple[int, int]:
+    """``WIDTHxHEIGHT`` -> (width, height)."""
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not WIDTHxHEIGHT (e.g. 1920x1080)") from None
+    if width < 64 or height < 64:
+        raise argparse.ArgumentTypeError(f"{text}: at least 64x64")
+    return width, height
 
 
 def measure(video: Path, preset: str, overrides: list[str], device: str) -> dict:
@@ -80,6 +102,7 @@ def measure(video: Path, preset: str, overrides: list[str], device: str) -> dict
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", type=frame_size, default=(640, 480), help="WIDTHxHEIGHT (default 640x480)")
     parser.add_argument("--config", default="default")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
@@ -92,13 +115,17 @@ def main() -> None:
         return
     with tempfile.TemporaryDirectory() as tmp:
         video = Path(tmp) / "two_tracks.mp4"
-        write_clip(video)
+        write_clip(video, args.size)
         command = [sys.executable, "-m", "benchmarks.pipeline", "--child", str(video), "--config", args.config]
         command += ["--device", args.device, *(a for s in args.set for a in ("--set", s))]
         done = subprocess.run(command, check=True, capture_output=True, text=True)
     row = json.loads(done.stdout.splitlines()[-1])
     total, stages = row["seconds"], row["stages"]
-    print(f"{args.config} preset {' '.join(args.set)} on {args.device}; {FRAMES} frames of 640x480, a ball then a box")
+    width, height = args.size
+    print(
+        f"{args.config} preset {' '.join(args.set)} on {args.device}; "
+        f"{FRAMES} frames of {width}x{height}, a ball then a box"
+    )
     print(
         f"fitted {row['fitted']} frames in {len(row['tracks'])} tracks (frames {', '.join(row['tracks'])}), "
         f"{row['windows']} joint windows; "
