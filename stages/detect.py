@@ -416,6 +416,26 @@ class FrameBlobs:
         touching in it (:func:`share_out`): (H, W) bool masks in the predictions' order, or None."""
         return share_out(self.labels == label, predictions, min_area)
 
+    def touches(self, label: int, prediction: Prediction) -> bool:
+        """Whether ``prediction``'s streak (the segment between its ends, widened by the object's
+        radius) covers a pixel of blob ``label``; False where it has no ends."""
+        if prediction.ends is None:
+            return False
+        x, y, w, h = (int(v) for v in self.stats[label, :4])
+        v, u = np.nonzero(self.labels[y : y + h, x : x + w] == label)
+        points = np.stack((u + x, v + y), 1).astype(np.float64)
+        return bool((streak_distances(points, prediction) <= 0).any())
+
+
+def streak_distances(points: np.ndarray, prediction: Prediction) -> np.ndarray:
+    """(N,) how far each (x, y) of ``points`` (N, 2) lies from ``prediction``'s streak: from the
+    segment between its ends, less the object's radius (negative inside the streak)."""
+    assert prediction.ends is not None
+    a, b = (np.array(e, dtype=np.float64) for e in prediction.ends)
+    along = np.clip((points - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-9), 0.0, 1.0)
+    nearest = a + along[:, None] * (b - a)
+    return np.linalg.norm(points - nearest, axis=1) - prediction.diameter / 2
+
 
 def share_out(
     blob: np.ndarray, predictions: list[Prediction], min_area: float, origin: tuple[int, int] = (0, 0)
@@ -429,13 +449,7 @@ def share_out(
         return None
     v, u = np.nonzero(blob)
     points = np.stack((u + origin[0], v + origin[1]), 1).astype(np.float64)
-    distances = []
-    for p in predictions:
-        a, b = (np.array(e, dtype=np.float64) for e in p.ends)  # type: ignore[union-attr]
-        along = np.clip((points - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-9), 0.0, 1.0)
-        nearest = a + along[:, None] * (b - a)
-        distances.append(np.linalg.norm(points - nearest, axis=1) - p.diameter / 2)
-    owner = np.argmin(np.stack(distances), axis=0)
+    owner = np.argmin(np.stack([streak_distances(points, p) for p in predictions]), axis=0)
     parts = []
     for k in range(len(predictions)):
         part = np.zeros(blob.shape, dtype=bool)

@@ -10,8 +10,9 @@ copies of blobs to share and a "coast" column per track):
    has little claim on a blob, and one with no other blob no more than that), and a track of one
    frame, which only guesses its direction, ``track.young_coast_cost``.
 2. **The tracks left over** take what is left: a blob no track took, or a share of a blob that a
-   track of two frames or more took (a copy of the blob per track that may share it, in the gate
-   of one of its guesses that is no fallback; ``track.share_cost`` more), or a blob only a
+   track of two frames or more took (a copy of the blob per track whose predicted streak, of a
+   guess that is no fallback, covers a pixel of it: :meth:`FrameBlobs.touches`;
+   ``track.share_cost`` more), or a blob only a
    fallback guess reaches (``track.fallback_cost`` more); none only where nothing is left.
 
 A blob no track takes is left to start a track of its own
@@ -113,7 +114,11 @@ def _left_over(
     unshared: set[int] = {k for k, t in held.items() if t.length < 2}
     while True:
         shares = [
-            {k: o for k, o in options[i].items() if not o.prediction.fallback and k not in unshared}
+            {
+                k: o
+                for k, o in options[i].items()
+                if not o.prediction.fallback and k not in unshared and found.touches(k, o.prediction)
+            }
             if trackers[i].length >= 2
             else {}
             for i in rest

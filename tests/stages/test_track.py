@@ -287,6 +287,14 @@ def test_a_track_whose_blob_another_takes_goes_to_a_blob_left_in_its_gate_else_s
     matched = _match(found, config, [lead, lagging])
     assert _taken(matched) == {0: upper, 1: upper}
     assert [[t.number for t in c.shared_with] for c in matched.claims] == [[1], [0]]
+    # A share is only for a track whose predicted streak covers a pixel of the blob: one whose
+    # streak runs just past it coasts, its streak merged into the other's.
+    found = _blobs(config, [(10, 5, 40, 10)])
+    lead = (0, 3, [_guess(15.0, 10.0)])
+    matched = _match(found, config, [lead, (1, 3, [_guess(45.0, 18.0, 4.0)])])  # 2 px below the blob
+    assert _taken(matched) == {0: 1} and [(t.number, k) for t, k in matched.merged] == [(1, 1)]
+    matched = _match(found, config, [lead, (1, 3, [_guess(45.0, 16.0, 4.0)])])  # on its bottom row
+    assert _taken(matched) == {0: 1, 1: 1} and all(c.part is not None for c in matched.claims)
 
 
 def test_a_blob_is_taken_by_the_track_s_guess_that_lands_nearest_it_in_pixels() -> None:
