@@ -3,9 +3,9 @@
     python -m benchmarks.pipeline [--size 640x480] [--config default] [--set KEY=VALUE ...] [--device cpu]
 
 The clip (generated on each run, bit-identical every time): 30 frames, a ball flying through
-frames 0-13 and gone after, then a box through frames 16-29, over one photo: two tracks. It is
-generated 640 px wide at the asked size's aspect and, for a larger ``--size`` (1920x1080,
-3840x2160), scaled up to it, so that the objects cover the same share of every size.
+frames 0-13 and gone after, then a box through frames 16-29, over one photo: two tracks. A
+``--size`` wider than 640 px (1920x1080, 3840x2160) is generated 640 px wide at its aspect and
+scaled up, so that the objects cover the same share of the frame as at 640 px.
 It is written as H.264 and processed by ``sfb-video process``'s own code with the difference
 masks, in a fresh child process, which reports its wall time, the seconds of each stage
 (:mod:`sfb_video.timing`: each stage's own time, those nested in it taken out) and its peak
@@ -53,8 +53,8 @@ def clip_specs(width: int = 640, height: int = 480) -> tuple[ClipSpec, ClipSpec]
 
 
 def write_clip(path: Path, size: tuple[int, int] = (640, 480)) -> None:
-    """The benchmark's clip as H.264 at 30 fps, ``size`` (width, height): generated
-    :data:`GENERATED_WIDTH` wide at its aspect, scaled up where it is larger."""
+    """The benchmark's clip as H.264 at 30 fps, ``size`` (width, height); a size wider than
+    :data:`GENERATED_WIDTH` is generated that wide at its aspect and scaled up."""
     width, height = size
     small = (min(width, GENERATED_WIDTH), round(min(width, GENERATED_WIDTH) * height / width))
     ball, box = (generate_clip(spec) for spec in clip_specs(*small))
@@ -67,13 +67,16 @@ def write_clip(path: Path, size: tuple[int, int] = (640, 480)) -> None:
 
 
 def frame_size(text: str) -> tuple[int, int]:
-    """``WIDTHxHEIGHT`` -> (width, height)."""
+    """``WIDTHxHEIGHT`` -> (width, height): even (H.264's 4:2:0), and at least 64 px each way
+    where it is generated (:func:`write_clip`)."""
     try:
         width, height = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not WIDTHxHEIGHT (e.g. 1920x1080)") from None
-    if width < 64 or height < 64:
-        raise argparse.ArgumentTypeError(f"{text}: at least 64x64")
+    if width % 2 or height % 2:
+        raise argparse.ArgumentTypeError(f"{text}: H.264 takes even sizes")
+    if min(width, GENERATED_WIDTH) < 64 or round(min(width, GENERATED_WIDTH) * height / width) < 64:
+        raise argparse.ArgumentTypeError(f"{text}: too small or too wide to generate (at least 64 px each way)")
     return width, height
 
 

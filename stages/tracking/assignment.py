@@ -112,17 +112,16 @@ def _left_over(
     # A track of one frame shares no blob, and no blob with one.
     allowed = [{k: o for k, o in options[i].items() if k not in held} for i in rest]
     unshared: set[int] = {k for k, t in held.items() if t.length < 2}
+    # The guess kept for a blob (the nearest, :func:`track_options`) is the one whose streak
+    # must cover it.
+    sharable = [
+        {k: o for k, o in options[i].items() if not o.prediction.fallback and found.touches(k, o.prediction)}
+        if trackers[i].length >= 2
+        else {}
+        for i in rest
+    ]
     while True:
-        shares = [
-            {
-                k: o
-                for k, o in options[i].items()
-                if not o.prediction.fallback and k not in unshared and found.touches(k, o.prediction)
-            }
-            if trackers[i].length >= 2
-            else {}
-            for i in rest
-        ]
+        shares = [{k: o for k, o in own.items() if k not in unshared} for own in sharable]
         second = assign(allowed, [NOTHING_LEFT] * len(rest), shares, track.share_cost)
         holders: dict[int, list[Claim]] = {}
         for i, option in [*enumerate(first), *zip(rest, second, strict=True)]:

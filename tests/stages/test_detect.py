@@ -277,3 +277,20 @@ def test_a_given_box_is_one_blob_of_its_changed_pixels_or_of_all_of_them_when_as
     assert still.count == 1  # nothing changed: no blob
     whole = box_blobs(FrameWithBackground(0, background.clone(), background), box, CONFIG, whole=True)
     assert whole.count == 2 and whole.area(1) == 15 * 12 and (whole.labels == 1).sum() == 15 * 12
+
+
+def test_a_predicted_streak_touches_a_blob_where_its_width_covers_one_of_its_pixels() -> None:
+    found = frame_blobs(_mask((10, 5, 20, 10)), CONFIG)  # rows 5-14, columns 10-29
+    label = int(found.labels[10, 20])
+
+    def streak(a: tuple[float, float], b: tuple[float, float]) -> Prediction:
+        return Prediction(((a[0] + b[0]) / 2, (a[1] + b[1]) / 2), 4.0, None, (a, b))  # 2 px wide each side
+
+    # Above, below and beside the blob: touching at 2 px from its edge pixels, not at 3.
+    assert found.touches(label, streak((12.0, 3.0), (20.0, 3.0)))
+    assert not found.touches(label, streak((12.0, 2.0), (20.0, 2.0)))
+    assert found.touches(label, streak((12.0, 16.0), (20.0, 16.0)))
+    assert not found.touches(label, streak((12.0, 17.0), (20.0, 17.0)))
+    assert found.touches(label, streak((31.0, 10.0), (40.0, 10.0)))
+    assert not found.touches(label, streak((32.0, 10.0), (40.0, 10.0)))
+    assert not found.touches(label, Prediction((20.0, 10.0), 4.0))  # no streak to cover it with

@@ -308,12 +308,14 @@ def test_a_blob_is_taken_by_the_track_s_guess_that_lands_nearest_it_in_pixels() 
     assert blob_cost(found, label, vague, config.detect) < blob_cost(found, label, near, config.detect)
     last = _fitted(0, (0.0, 0.0, 8.0), (0.0, 0.1, 0.0))
     for guesses in ([near, vague], [vague, near]):
-        options = track_options(found, [(g, last) for g in guesses], config.detect, config.track)
-        assert options[label].prediction is near
-    # A fallback guess takes the blob only where no other guess reaches it.
+        option = track_options(found, [(g, last) for g in guesses], config.detect, config.track)[label]
+        assert option.prediction is near and option.cost == blob_cost(found, label, near, config.detect)
+    # A fallback guess takes the blob only where no other guess reaches it, a tier dearer.
     fallback = _guess(30.0, 15.0, fallback=True)
     assert track_options(found, [(near, last), (fallback, last)], config.detect, config.track)[label].prediction is near
-    assert track_options(found, [(fallback, last)], config.detect, config.track)[label].prediction is fallback
+    option = track_options(found, [(fallback, last)], config.detect, config.track)[label]
+    assert option.prediction is fallback
+    assert option.cost == blob_cost(found, label, fallback, config.detect) + config.track.fallback_cost
 
 
 def test_the_assignment_does_not_depend_on_the_order_of_the_tracks() -> None:
