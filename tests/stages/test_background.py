@@ -9,7 +9,7 @@ import torch
 
 from sfb_video.config import VideoConfig
 from sfb_video.errors import SfbError
-from sfb_video.stages.background import fixed_background, running_median, with_backgrounds
+from sfb_video.stages.background import fixed_background, lower_median, running_median, with_backgrounds
 from sfb_video.stages.types import Frame
 from sfb_video.video import VideoWriter
 
@@ -69,3 +69,12 @@ def test_a_frame_range_gets_the_backgrounds_of_a_run_over_the_whole_clip(tmp_pat
     for f in part:
         assert torch.equal(f.image, whole[f.index].image)
         assert torch.equal(f.background, whole[f.index].background)
+
+
+@pytest.mark.parametrize("dtype", [torch.uint8, torch.float32])
+def test_the_lower_median_is_torch_s_median_for_any_count_of_frames(dtype: torch.dtype) -> None:
+    generator = torch.Generator().manual_seed(0)
+    for n in range(1, 10):
+        # Few distinct values, so that ties are common; torch takes the lower middle of an even count.
+        values = torch.randint(0, 6, (n, 3, 7, 11), generator=generator).to(dtype)
+        assert torch.equal(lower_median(list(values)), values.median(dim=0).values)
