@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 import rerun as rr
@@ -609,3 +610,16 @@ def test_the_replay_shows_each_windows_shape_and_how_clearly_it_won() -> None:
     assert rows[2] == "| 0 | 0-2 | box | +0.12 | sphere 1.00, box 0.88 |"
     assert rows[3] == "| 0 | 3-5 | box | - | no trial: the shape of the track's earlier fits |"
     assert "No joint windows" in shape_text([])
+
+
+def test_a_logged_image_decodes_to_the_image_in_its_colours(tmp_path: Path) -> None:
+    # Three channels apart, smooth (JPEG's 8x8 blocks keep a gradient close): a swapped channel
+    # or a flipped image would be off by far more than the encoding's error.
+    v, u = torch.meshgrid(torch.linspace(0, 1, CAMERA.height), torch.linspace(0, 1, CAMERA.width), indexing="ij")
+    image = torch.stack((0.2 + 0.7 * u, 0.9 - 0.6 * v, torch.full_like(u, 0.4)))
+    path = tmp_path / "recording.rrd"
+    with Recorder(path, CAMERA, "colours", subframes=N_SUB) as rec:
+        rec.log_frame(0, image, image)
+    blob = one_at(RrdReader(path).stream().to_chunks(), "/world/camera/image", "EncodedImage:blob", "frame", 0)
+    decoded = cv2.cvtColor(cv2.imdecode(np.frombuffer(bytes(blob), np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    assert np.abs(decoded.astype(np.float64) - to_uint8(image)).mean() < 2.0
