@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from sfb_video.errors import SfbError
-from sfb_video.imageio import read_image, write_image
+from sfb_video.imageio import read_image, to_uint8, write_image
 
 
 def test_round_trip_is_exact_at_8_bit(tmp_path: Path) -> None:
@@ -32,3 +32,14 @@ def test_missing_and_corrupt_images_are_clear_errors(tmp_path: Path) -> None:
     (tmp_path / "bad.png").write_bytes(b"not a png")
     with pytest.raises(SfbError, match="not a readable image"):
         read_image(tmp_path / "bad.png")
+
+
+def test_to_uint8_interleaves_the_planes_of_any_tensor_in_rgb_or_bgr() -> None:
+    generator = torch.Generator().manual_seed(0)
+    values = torch.rand(3, 9, 14, generator=generator)
+    expected = (values * 255).round().to(torch.uint8).permute(1, 2, 0).numpy()
+    for image in (values, (values * 255).round().to(torch.uint8), values[:, :, 2:]):
+        want = expected[:, 2:] if image.shape[2] == 12 else expected
+        assert np.array_equal(to_uint8(image), want)
+        assert np.array_equal(to_uint8(image, bgr=True), want[..., ::-1])
+    assert np.array_equal(to_uint8(values.permute(1, 2, 0).numpy(), bgr=True), expected[..., ::-1])
