@@ -509,12 +509,12 @@ def box_blobs(frame: FrameWithBackground, box: Box, config: DetectConfig, whole:
     its box; none where nothing changed there. A track goes on into it by the same gate as into a
     detected blob."""
     x, y, w, h = box
-    if whole:
-        changed = torch.ones(tuple(frame.pixels.shape[1:]), dtype=torch.bool)[y : y + h, x : x + w]
-    else:
-        changed = difference_mask(frame.pixels, frame.background_pixels, config, frame.known)[y : y + h, x : x + w]
     labels = np.zeros(tuple(frame.pixels.shape[1:]), np.int32)
-    labels[y : y + h, x : x + w] = changed.cpu().numpy()
+    if whole:
+        labels[y : y + h, x : x + w] = 1
+    else:
+        changed = difference_mask(frame.pixels, frame.background_pixels, config, frame.known)
+        labels[y : y + h, x : x + w] = changed[y : y + h, x : x + w].cpu().numpy()
     ys, xs = np.nonzero(labels)
     pixels = (frame.pixels.cpu().numpy(), frame.background_pixels.cpu().numpy())
     if xs.size == 0:

@@ -104,8 +104,8 @@ class Tracker:
         if self.earlier is not None:
             # A second guess from the image: the last streak moved on at the pace of the last
             # two. One frame's fit is unsure of its speed (a longer object moving less blurs
-            # alike) and a falling object gathers speed; each blob is taken by its cheaper guess
-            # (:mod:`~sfb_video.stages.tracking.cost`).
+            # alike) and a falling object gathers speed; each blob is taken by the guess that lands
+            # nearer it (:mod:`~sfb_video.stages.tracking.cost`).
             glided = self._glided(index)
             last = predict(self.previous.state.motion, self.camera).centre
             if self._clean_pace() and lags(predicted[0][0], glided, last, self.detect, self.track):
