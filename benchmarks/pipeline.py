@@ -1,4 +1,4 @@
-"""The whole pipeline on one fixed clip: frames per second, seconds per stage, peak memory.
+"""The whole pipeline on one fixed clip: frames per second, seconds per stage, peak memory, the recording's size.
 
     python -m benchmarks.pipeline [--size 640x480] [--config default] [--set KEY=VALUE ...] [--device cpu]
 
@@ -88,7 +88,8 @@ def measure(video: Path, preset: str, overrides: list[str], device: str) -> dict
     with tempfile.TemporaryDirectory() as tmp:
         options = ProcessOptions(video=video, out=Path(tmp) / "run", masks="diff")
         summary = process_clip(options, config, torch.device(device), quiet=True)
-    seconds = time.perf_counter() - start
+        seconds = time.perf_counter() - start
+        recording_mb = (options.out / "recording.rrd").stat().st_size / 2**20
     tracks: dict[int, list[int]] = {}
     for frame in summary["frames"]:
         if frame.get("track") is not None:
@@ -97,6 +98,7 @@ def measure(video: Path, preset: str, overrides: list[str], device: str) -> dict
         "seconds": seconds,
         "stages": timing.stage_seconds(),
         "peak_mb": peak_mb(),
+        "recording_mb": recording_mb,
         "fitted": summary["frames_fitted"],
         "tracks": [f"{frames[0]}-{frames[-1]}" for frames in tracks.values()],
         "windows": len(summary["joint"]["windows"]),
@@ -132,7 +134,8 @@ def main() -> None:
     print(
         f"fitted {row['fitted']} frames in {len(row['tracks'])} tracks (frames {', '.join(row['tracks'])}), "
         f"{row['windows']} joint windows; "
-        f"peak memory {row['peak_mb']:.0f} MB\n"
+        f"peak memory {row['peak_mb']:.0f} MB; recording.rrd {row['recording_mb']:.1f} MB, "
+        f"{row['recording_mb'] / FRAMES:.2f} MB a frame\n"
     )
     print("| stage | seconds | share | s / frame |")
     print("|---|---:|---:|---:|")

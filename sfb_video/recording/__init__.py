@@ -21,7 +21,8 @@ Entity layout (what each path holds):
                                    x right, y down, z forward), so the 3D view matches the image.
     world/camera                   static Pinhole: the clip's intrinsics and resolution, camera at
                                    the world origin.
-    world/camera/image             the input frame (JPEG), shown in the pinhole's 2D view and on
+    world/camera/image             the input frame (an AV1 VideoStream, as every image below:
+                                   :mod:`.video_stream`), shown in the pinhole's 2D view and on
                                    its frustum in 3D; static AnnotationContext for the mask.
     world/camera/image/detection   Boxes2D: the detected objects' boxes, labelled by track; Clear on
                                    frames without one.
@@ -38,10 +39,11 @@ Entity layout (what each path holds):
                                    (unit scale), and Transform3D (translation + mat3x3): its pose,
                                    object -> camera coordinates.
     world/trajectory/track_XX      LineStrips3D + Points3D: track XX's 3D positions so far.
-    background                     the estimated background (JPEG).
-    reconstruction                 I_hat, the fitted object blurred over the background (JPEG).
-    tsr                            the temporal super-resolution sub-frames (JPEG), one per
-                                   sub-frame time step.
+    background                     the estimated background.
+    reconstruction                 I_hat, the fitted object blurred over the background.
+    tsr                            the temporal super-resolution sub-frames, one per sub-frame
+                                   time step; on the frame timeline a stream of its own holds
+                                   each frame's middle one.
     losses/track_XX/<name>         Scalars: the final value of each loss of a frame's fit.
     fit/track_XX/<name>            Scalars, step timeline only: each loss along the optimisation
                                    of each of the track's fits, one after another.

@@ -10,7 +10,6 @@ import uuid
 from collections.abc import Sequence
 from pathlib import Path
 
-import cv2
 import numpy as np
 import rerun as rr
 import torch
@@ -25,9 +24,9 @@ from sfb_video.model.formation import exposure_times
 from sfb_video.model.scene import ObjectState
 from sfb_video.recording.layout import APPLICATION_ID, FRAME, STEP, SUBFRAME, layout, shape_text, spans, track_entity
 from sfb_video.recording.pipe import Pipe
+from sfb_video.recording.video_stream import VideoEncoder
 from sfb_video.timing import timed
 
-JPEG_QUALITY = 90
 # The footer is an index of every chunk, written on close: it keeps LazyStore and random access
 # working, at the cost of a few KB of memory per chunk until then (about 30 KB per frame
 # measured). Everything else streams to disk; False makes memory flat but rerun then warns on
@@ -78,6 +77,8 @@ class Recorder(AtomicOutput):
         self._sources: dict[int, dict[str, list[int]]] = {}  # track -> mask source -> frames
         self._steps: dict[int, int] = {}  # track -> the steps of its fits logged so far
         self._paths: dict[int, np.ndarray] = {}  # track -> its trajectory, as last logged
+        self._videos: dict[str, VideoEncoder] = {}  # stream -> its encoder
+        self._codecs: set[str] = set()  # the paths whose codec is logged
         self._tmp: Path | None = temporary_sibling(self.path, ".rrd")
         self._pipe: Pipe | None = None
         if recording_id is None:
@@ -113,8 +114,8 @@ class Recorder(AtomicOutput):
         self._check_image(background, "background")
         self._flush()  # what the previous frame logged: a write error surfaces here, not at the end
         self._at_frame(index)
-        self._log("world/camera/image", _jpeg(image))
-        self._log("background", _jpeg(background))
+        self._log_video("world/camera/image", image)
+        self._log_video("background", background)
 
     @timed("recording")
     def log_detection(self, index: int, boxes: dict[int, Box], mask: torch.Tensor | None) -> None:
@@ -162,14 +163,19 @@ class Recorder(AtomicOutput):
         if n not in (1, self.subframes):
             raise SfbError(f"frame {index}: {n} sub-frames, expected {self.subframes} (or 1 for the whole frame)")
         self._at_frame(index)
-        self._log("reconstruction", _jpeg(reconstruction))
+        self._log_video("reconstruction", reconstruction)
         for k in range(n):
             sub = subframes[k]
             self._check_image(sub, "subframe")
-            # The middle one stands for its frame on the frame timeline, where the object's pose
-            # is the mid-exposure one: without it the super-resolved panel was empty there.
-            self._at(frame=index if k == n // 2 else None, subframe=index * self.subframes + k)
-            self._log("tsr", _jpeg(sub))
+            self._at(subframe=index * self.subframes + k)
+            self._log_video("tsr", sub)
+            if k == n // 2:
+                # The middle one stands for its frame on the frame timeline, where the object's
+                # pose is the mid-exposure one (without it the super-resolved panel was empty
+                # there). A stream of its own: a sample of the full stream there would refer to
+                # sub-frames that timeline does not hold.
+                self._at(frame=index)
+                self._log_video("tsr", sub, stream="tsr middle")
 
     @timed("recording")
     def log_fit(
@@ -316,6 +322,7 @@ class Recorder(AtomicOutput):
             self.abort()  # Ctrl-C while waiting (does nothing after an abort)
             raise
         tmp, self._tmp = self._tmp, None
+        self._close_videos()
         try:
             # disconnect() writes the footer and closes rerun's end of the pipe; the file is
             # complete once the copy thread has written the last bytes.
@@ -334,6 +341,7 @@ class Recorder(AtomicOutput):
         if self._tmp is None:
             return
         tmp, self._tmp = self._tmp, None
+        self._close_videos()
         try:
             self._rec.disconnect()
             # Its write error, if any, is moot: the file is removed.
@@ -392,6 +400,24 @@ class Recorder(AtomicOutput):
         if subframe is not None:
             self._rec.set_time(SUBFRAME, sequence=int(subframe))
 
+    def _log_video(self, path: str, image: torch.Tensor, stream: str | None = None) -> None:
+        """Log (3, H, W) ``image`` at ``path`` as the next sample of its video ``stream`` (by
+        default the path's own), at the times set; the first sample of a path logs its codec."""
+        stream = stream or path
+        encoder = self._videos.get(stream)
+        if encoder is None:
+            encoder = self._videos[stream] = VideoEncoder(self.camera.width, self.camera.height)
+        if path not in self._codecs:
+            self._log(path, rr.VideoStream(codec=rr.VideoCodec.AV1), static=True)
+            self._codecs.add(path)
+        sample, keyframe = encoder.encode(image)
+        self._log(path, rr.VideoStream.from_fields(sample=sample, is_keyframe=keyframe))
+
+    def _close_videos(self) -> None:
+        videos, self._videos = self._videos, {}
+        for encoder in videos.values():
+            encoder.close()
+
     def _log(self, path: str, *archetypes: rr.AsComponents, static: bool = False) -> None:
         self._check_open()
         self._rec.log(path, *archetypes, static=static, strict=True)
@@ -427,16 +453,6 @@ class Recorder(AtomicOutput):
 
     def _check_image(self, image: torch.Tensor, name: str) -> None:
         check_shape(image, (3, self.camera.height, self.camera.width), name)
-
-
-def _jpeg(image: torch.Tensor) -> rr.EncodedImage:
-    """A (3, H, W) image (uint8, or float in [0, 1]) as a JPEG-encoded rerun image. OpenCV's
-    encoder takes half the time of the one behind ``rr.Image.compress`` (9 against 18 ms for a
-    1080p frame), and a frame logs a dozen images."""
-    done, encoded = cv2.imencode(".jpg", to_uint8(image, bgr=True), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
-    if not done:
-        raise SfbError(f"could not encode a {tuple(image.shape)} image as JPEG")
-    return rr.EncodedImage(contents=encoded.tobytes(), media_type="image/jpeg")
 
 
 def _transform(rotation: torch.Tensor, position: torch.Tensor) -> rr.Transform3D:
