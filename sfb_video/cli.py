@@ -10,7 +10,9 @@ half-written output that looks complete (:mod:`sfb_video.run_folder`).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
 import typing
 from collections.abc import Sequence
@@ -23,7 +25,7 @@ from sfb_video import __version__
 from sfb_video.config import load_config, save_config
 from sfb_video.devices import resolve_device
 from sfb_video.errors import ConfigError, OutputError, SfbError, printable
-from sfb_video.interrupts import sigint_outside_kernels
+from sfb_video.interrupts import kernel_call, sigint_outside_kernels
 from sfb_video.run_folder import CONFIG, open_export, open_run
 from sfb_video.stages.read import parse_frames
 
@@ -628,6 +630,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(_attach_dash_values(list(sys.argv[1:] if argv is None else argv)))
     try:
         with sigint_outside_kernels():
+            with kernel_call():
+                # trimesh's imports catch BaseException (its optional parts): a Ctrl-C there was
+                # lost and the command ran to the end. Held here, it is raised after the import.
+                import trimesh  # noqa: F401
             return args.func(args)
     except OutputError as exc:
         resumable = args.command in ("process", "demo")
@@ -648,5 +654,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         return INTERRUPTED
 
 
+def run() -> typing.NoReturn:
+    """The console command (started by :func:`sfb_video.interrupts.run_command`): :func:`main`'s
+    exit status as the process's, whenever Ctrl-C comes.
+
+    Once main has returned, every output is whole and closed, and the process ends at once
+    (``os._exit``) with main's status, Ctrl-C ignored: Python's own shutdown (torch's and numba's
+    teardown, most of a second) turned a Ctrl-C into death by the signal, its parent seeing -2
+    instead of 130 or 0, and so did a Ctrl-C during main that an extension's embedded code had
+    seen first (CPython then re-raises the signal at exit even though main handled it).
+    """
+    code = INTERRUPTED
+    try:
+        code = main()
+    except KeyboardInterrupt:  # between main's own handler and the line below
+        code = INTERRUPTED
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):  # a closed pipe: nothing more to say
+            stream.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

@@ -143,6 +143,34 @@ def test_a_replacement_stopped_by_sigint_keeps_the_old_run(clip: Path, finished:
     assert list((staged / "frames").glob("*.pt")) and not _temporaries(out)
 
 
+@pytest.mark.usefixtures("ctrl_c")
+def test_ctrl_c_at_any_moment_of_an_export_ends_it_with_130_or_its_finish(finished: Path, tmp_path: Path) -> None:
+    # Through the console command, from its start-up (torch loading, trimesh's imports, which
+    # once swallowed the KeyboardInterrupt) through the export and the folder's swap to Python's
+    # shutdown (where the process once died of the signal: -2): 130 with the run as it was, or 0
+    # with the export done; one line at most, never a traceback.
+    out = _copy(finished, tmp_path)
+    command = [str(Path(sys.executable).parent / "sfb-video"), "export", str(out), "--tsr", "16", "--quiet"]
+    start = time.monotonic()
+    subprocess.run(command, check=True)
+    whole = time.monotonic() - start
+    # An export is deterministic, finished or not (but for the recording's random row ids).
+    before = _contents(out)
+    del before["recording.rrd"]
+    codes = []
+    for fraction in (0.05, 0.2, 0.4, 0.6, 0.8, 0.9, 0.97):
+        process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+        time.sleep(whole * fraction)
+        process.send_signal(signal.SIGINT)
+        _, err = process.communicate(timeout=120)
+        codes.append(process.returncode)
+        assert process.returncode in (0, 130), (fraction, process.returncode, err)
+        assert "Traceback" not in err and len(err.strip().splitlines()) <= 1, err
+        after = _contents(out)
+        assert after.pop("recording.rrd") and after == before and not _temporaries(out)
+    assert 130 in codes  # the early ones land during the run
+
+
 # --------------------------------------------------------------------------------------------
 # Faults during a run: a full disk, the folder removed, the folder made read-only
 
