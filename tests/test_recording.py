@@ -651,3 +651,34 @@ def test_a_logged_image_decodes_to_the_image_in_its_colours(tmp_path: Path) -> N
         rec.log_frame(0, image, image)
     (decoded,) = decode(RrdReader(path).stream().to_chunks(), "/world/camera/image", "frame")
     assert np.abs(decoded.astype(np.float64) - to_uint8(image)).mean() < 2.0
+
+
+def test_a_clip_larger_than_the_view_is_recorded_shrunk_with_its_boxes_masks_and_pinhole(
+    inputs: Inputs, tmp_path: Path
+) -> None:
+    # As a 4K clip is recorded at 1920x1080: here 64x48 into 32x24, everything 2D halved alike.
+    path = tmp_path / "recording.rrd"
+    with Recorder(path, CAMERA, "shrunk", subframes=N_SUB, max_view=(32, 24)) as rec:
+        assert rec.shrink == 2 and rec.view_size == (32, 24)
+        rec.log_frame(0, inputs.images[0], inputs.background)
+        rec.log_detection(0, {0: BOX}, inputs.mask)
+        rec.log_subframes(0, inputs.reconstruction, inputs.subframes)
+    chunks = RrdReader(path).stream().to_chunks()
+    assert one_at(chunks, "/world/camera", "Pinhole:resolution", None) == [32, 24]
+    k = column_major(one_at(chunks, "/world/camera", "Pinhole:image_from_camera", None))
+    assert k[0, 0] == pytest.approx(CAMERA.fx / 2) and k[0, 2] == pytest.approx((CAMERA.cx + 0.5) / 2)
+    x, y, w, h = BOX
+    centre = one_at(chunks, "/world/camera/image/detection", "Boxes2D:centers", "frame", 0)
+    assert centre == pytest.approx([(x + w / 2) / 2, (y + h / 2) / 2])
+    buffer = one_at(chunks, "/world/camera/image/mask", "SegmentationImage:buffer", "frame", 0)
+    ids = np.frombuffer(bytes(buffer), dtype=np.uint8).reshape(24, 32)
+    assert np.array_equal(ids, inputs.mask.numpy()[::2, ::2].astype(np.uint8))
+    (image,) = decode(chunks, "/world/camera/image", "frame")
+    half = to_uint8(inputs.images[0]).reshape(24, 2, 32, 2, 3).mean(axis=(1, 3))
+    assert image.shape == (24, 32, 3) and np.abs(image - half).mean() < 5.0
+    # The 3D pose of the pinhole's image plane is unchanged: a point projects to the same place.
+    point = np.array([0.3, -0.2, 4.0])
+    full = np.array(
+        [CAMERA.fx * point[0] / point[2] + CAMERA.cx + 0.5, CAMERA.fy * point[1] / point[2] + CAMERA.cy + 0.5]
+    )
+    assert (k @ point)[:2] / point[2] == pytest.approx(full / 2)

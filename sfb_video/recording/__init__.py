@@ -15,6 +15,10 @@ only in its log, after which its flush times out and its disconnect waits foreve
 pipe, which is always drained, rerun's writer never fails, and a write error is an ``OSError`` of
 ours, reported as a one-line :class:`~sfb_video.errors.OutputError` at the next frame or on close.
 
+A clip larger than 1920x1080 is recorded at 1/f of its size, f the smallest whole number that
+fits it (:data:`~sfb_video.recording.recorder.MAX_VIEW`): its images, boxes, masks and the
+pinhole alike, so that they line up as at full size; the 3D scene is the same.
+
 Entity layout (what each path holds):
 
     world                          static ViewCoordinates RDF: world = the camera frame (OpenCV,

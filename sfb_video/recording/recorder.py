@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
 
+import cv2
 import numpy as np
 import rerun as rr
 import torch
@@ -35,6 +37,10 @@ WRITE_FOOTER = True
 # rerun's writer only waits on our copy thread (:class:`~sfb_video.recording.pipe.Pipe`), which
 # never stops reading; the limit is for a disk that stops answering (a healthy one takes a frame in milliseconds).
 FLUSH_TIMEOUT_S = 120.0
+MAX_VIEW = (1920, 1080)
+"""The largest images the recording holds, (width, height): a larger clip is recorded at 1/f of
+its size, f the smallest whole number that fits it (a 4K clip at 1920x1080). An AV1 encoder of
+a 4K stream holds about 200 MB, and the recording has five streams."""
 MASK_CLASS = 1
 SUBFRAME_MASK_CLASS = 2
 # In object sizes (the unit of the 3D scene), so they scale with the object.
@@ -58,6 +64,8 @@ class Recorder(AtomicOutput):
         subframes: n, the TSR sub-frames of each frame (the subframe timeline's step).
         recording_id: rerun's recording id; by default derived from ``name``, so re-runs of one
             clip share it (the viewer merges recordings with the same id).
+        max_view: :data:`MAX_VIEW`. Images, boxes, masks and the pinhole are taken at the
+            camera's size and recorded at the reduced one, all alike; the 3D scene is unchanged.
 
     Raises:
         SfbError: if the temporary file cannot be created.
@@ -65,12 +73,22 @@ class Recorder(AtomicOutput):
 
     @timed("recording")
     def __init__(
-        self, path: str | Path, camera: PinholeCamera, name: str, *, subframes: int, recording_id: str | None = None
+        self,
+        path: str | Path,
+        camera: PinholeCamera,
+        name: str,
+        *,
+        subframes: int,
+        recording_id: str | None = None,
+        max_view: tuple[int, int] = MAX_VIEW,
     ) -> None:
         if subframes < 1:
             raise SfbError(f"subframes must be at least 1, got {subframes}")
         self.path = Path(path)
         self.camera = camera
+        self.shrink = max(1, math.ceil(max(camera.width / max_view[0], camera.height / max_view[1])))
+        """f: the recording's images are 1/f of the camera's size."""
+        self.view_size = (round(camera.width / self.shrink), round(camera.height / self.shrink))
         self.subframes = subframes
         self._frame: int | None = None
         self._masks_shown: set[int] = set()  # the tracks whose masks show
@@ -133,8 +151,8 @@ class Recorder(AtomicOutput):
             self._log(
                 "world/camera/image/detection",
                 rr.Boxes2D(
-                    mins=[b[:2] for b in boxes.values()],
-                    sizes=[b[2:] for b in boxes.values()],
+                    mins=[(b[0] / self.shrink, b[1] / self.shrink) for b in boxes.values()],
+                    sizes=[(b[2] / self.shrink, b[3] / self.shrink) for b in boxes.values()],
                     labels=[f"track {t}" for t in boxes],
                 ),
             )
@@ -143,7 +161,7 @@ class Recorder(AtomicOutput):
         else:
             check_shape(mask, (self.camera.height, self.camera.width), "mask")
             ids = (mask.detach().float().cpu() > 0.5).numpy().astype(np.uint8) * MASK_CLASS
-            self._log("world/camera/image/mask", rr.SegmentationImage(ids, opacity=0.5))
+            self._log("world/camera/image/mask", rr.SegmentationImage(self._shrunk(ids), opacity=0.5))
 
     @timed("recording")
     def log_subframes(self, index: int, reconstruction: torch.Tensor, subframes: Sequence[torch.Tensor]) -> None:
@@ -265,7 +283,7 @@ class Recorder(AtomicOutput):
             j = min(int((k + 0.5) * masks.shape[0] / n), masks.shape[0] - 1)
             ids[y : y + h, x : x + w] = (pasted[j] > 0.5).numpy().astype(np.uint8) * SUBFRAME_MASK_CLASS
             self._at(subframe=index * n + k)
-            self._log(entity, rr.SegmentationImage(ids, opacity=0.5))
+            self._log(entity, rr.SegmentationImage(self._shrunk(ids), opacity=0.5))
         self._masks_shown.add(track)
 
     @timed("recording")
@@ -355,12 +373,14 @@ class Recorder(AtomicOutput):
 
     def _log_static(self, camera: PinholeCamera) -> None:
         self._log("world", rr.ViewCoordinates.RDF, static=True)
-        intrinsics = [[camera.fx, 0.0, camera.cx + 0.5], [0.0, camera.fy, camera.cy + 0.5], [0.0, 0.0, 1.0]]
+        # rerun's pixel centres are at half-integers: the shrunk image's coordinates are those / f.
+        f = self.shrink
+        intrinsics = [[camera.fx / f, 0.0, (camera.cx + 0.5) / f], [0.0, camera.fy / f, (camera.cy + 0.5) / f]]
         self._log(
             "world/camera",
             rr.Pinhole(
-                image_from_camera=intrinsics,
-                resolution=[camera.width, camera.height],
+                image_from_camera=[*intrinsics, [0.0, 0.0, 1.0]],
+                resolution=list(self.view_size),
                 camera_xyz=rr.ViewCoordinates.RDF,
             ),
             static=True,
@@ -406,12 +426,20 @@ class Recorder(AtomicOutput):
         stream = stream or path
         encoder = self._videos.get(stream)
         if encoder is None:
-            encoder = self._videos[stream] = VideoEncoder(self.camera.width, self.camera.height)
+            encoder = self._videos[stream] = VideoEncoder(*self.view_size)
         if path not in self._codecs:
             self._log(path, rr.VideoStream(codec=rr.VideoCodec.AV1), static=True)
             self._codecs.add(path)
-        sample, keyframe = encoder.encode(image)
+        sample, keyframe = encoder.encode(self._shrunk(to_uint8(image)))
         self._log(path, rr.VideoStream.from_fields(sample=sample, is_keyframe=keyframe))
+
+    def _shrunk(self, pixels: np.ndarray) -> np.ndarray:
+        """(H, W, ...) ``pixels`` at the recording's size: averaged (INTER_AREA) where they are
+        colours, the nearest where they are class ids (uint8 (H, W))."""
+        if self.shrink == 1:
+            return pixels
+        labels = pixels.ndim == 2
+        return cv2.resize(pixels, self.view_size, interpolation=cv2.INTER_NEAREST if labels else cv2.INTER_AREA)
 
     def _close_videos(self) -> None:
         videos, self._videos = self._videos, {}
