@@ -119,6 +119,16 @@ def find_object_box(image: torch.Tensor, background: torch.Tensor, threshold: fl
     return largest_blob(object_region(image, background, threshold, 0.0))[1]
 
 
+def streak_width(blob: np.ndarray) -> float:
+    """The width in pixels of the streak in (h, w) bool ``blob``: twice its largest inscribed
+    radius, so a thin streak's width whatever its direction (a diagonal streak's box is as tall
+    as it is long). At most the object's diameter, where the blob holds the streak's core."""
+    if not blob.any():
+        return 0.0
+    inside = cv2.distanceTransform(np.pad(blob, 1).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return 2.0 * float(inside.max())
+
+
 def crop_box(box: Box, frame_size: tuple[int, int], config: CropConfig) -> Box:
     """Grow ``box`` by the margin, widen it to the aspect ratio and fit it in the frame (W, H)."""
     x, y, w, h = box
@@ -155,6 +165,24 @@ def _resize(image: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     return F.interpolate(image[None], size=(size[1], size[0]), mode="bilinear", antialias=True, align_corners=False)[0]
 
 
+def _native_width(
+    image: torch.Tensor, background: torch.Tensor, box: Box, config: CropConfig, blob: torch.Tensor | None
+) -> float:
+    """:func:`streak_width` of the object in ``box`` at the frame's own resolution: of ``blob``
+    there when given, else of the largest blob of the object region."""
+    x, y, w, h = box
+    w, h, x, y = w + min(x, 0), h + min(y, 0), max(x, 0), max(y, 0)  # a box reaching past the top or left
+    if blob is not None:
+        return streak_width(blob[y : y + h, x : x + w].cpu().numpy())
+    region = object_region(
+        as_float(image[:, y : y + h, x : x + w]),
+        as_float(background[:, y : y + h, x : x + w]),
+        config.region_threshold,
+        0.0,
+    )
+    return streak_width(largest_blob(region)[0].cpu().numpy() > 0)
+
+
 def make_crop(
     image: torch.Tensor,
     background: torch.Tensor,
@@ -182,6 +210,8 @@ def make_crop(
     cb = crop_box(box, (width, height), config)
     x0, y0, cw, ch = cb
     scale = min(1.0, config.max_width / cw)
+    if config.max_object_px > 0:
+        scale = min(scale, config.max_object_px / max(1.0, _native_width(image, background, box, config, blob)))
     out = (max(1, round(cw * scale)), max(1, round(ch * scale)))
     img = _resize(as_float(image[:, y0 : y0 + ch, x0 : x0 + cw]), out).clamp(0, 1)
     bgr = _resize(as_float(background[:, y0 : y0 + ch, x0 : x0 + cw]), out).clamp(0, 1)

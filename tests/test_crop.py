@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import cv2
+import numpy as np
+import pytest
 import torch
 
 from sfb_video.config import CropConfig
-from sfb_video.crop import make_crop, masks_onto, object_region
+from sfb_video.crop import make_crop, mask_box, masks_onto, object_region, streak_width
 from sfb_video.geometry.camera import PinholeCamera
 
 
@@ -68,3 +71,48 @@ def test_masks_made_on_one_crop_are_drawn_where_the_same_pixels_are_on_another()
     scale = large.image.shape[2] / large.box[2]
     left = round((small.box[0] - large.box[0]) * scale) - 1
     assert float(moved[:, :, :left].abs().max()) == 0.0
+
+
+def test_the_streak_width_is_its_thickness_in_any_direction() -> None:
+    for end in ((180, 20), (180, 150), (20, 180)):  # along, diagonal, down
+        blob = np.zeros((200, 200), np.uint8)
+        cv2.line(blob, (20, 20), end, 1, 15)
+        assert 14.0 <= streak_width(blob > 0) <= 19.0, end
+    disc = np.zeros((60, 60), np.uint8)
+    cv2.circle(disc, (30, 30), 12, 1, -1)
+    assert 23.0 <= streak_width(disc > 0) <= 25.0
+    assert streak_width(np.zeros((5, 5), bool)) == 0.0
+
+
+@pytest.mark.parametrize("with_blob", [True, False])
+def test_a_large_object_is_fitted_at_most_max_object_px_across(with_blob: bool) -> None:
+    # A 1080p clip's ball, 72 px across, streaking diagonally: the crop is scaled so that the
+    # object spans 32 px, not max_width's 200 px wide crop; the camera follows the scale.
+    camera = PinholeCamera.from_fov(1920, 1080, 45.0)
+    image, background = torch.full((3, 1080, 1920), 0.3), torch.full((3, 1080, 1920), 0.3)
+    blob = np.zeros((1080, 1920), np.uint8)
+    cv2.line(blob, (900, 500), (940, 520), 1, 72)
+    mask = torch.from_numpy(blob > 0)
+    image[:, mask] = 0.8
+    box = mask_box(blob > 0)
+    assert box is not None
+    bounded = make_crop(image, background, box, camera, CropConfig(), mask if with_blob else None)
+    across = streak_width(bounded.object_mask.numpy() > 0)
+    assert 29.0 <= across <= 34.0, across
+    free = make_crop(image, background, box, camera, CropConfig(max_object_px=0), mask if with_blob else None)
+    assert free.image.shape[2] == CropConfig().max_width > bounded.image.shape[2]
+    # Both cameras see the object where it is: the box's centre projects to the crop's centre.
+    for crop in (bounded, free):
+        scale = crop.image.shape[2] / crop.box[2]
+        assert crop.camera.fx == pytest.approx(camera.fx * scale, rel=0.01)
+
+
+def test_an_object_under_the_bound_keeps_its_crop() -> None:
+    camera = PinholeCamera.from_fov(320, 240, 45.0)
+    image = torch.full((3, 240, 320), 0.5)
+    image[:, 100:120, 150:190] = 0.9  # 40 x 20 px: 20 across, under 32
+    mask = image[0] > 0.6
+    box = (150, 100, 40, 20)
+    bounded = make_crop(image, torch.full_like(image, 0.5), box, camera, CropConfig(), mask)
+    free = make_crop(image, torch.full_like(image, 0.5), box, camera, CropConfig(max_object_px=0), mask)
+    assert torch.equal(bounded.image, free.image) and bounded.box == free.box
