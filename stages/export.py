@@ -66,7 +66,11 @@ def layer(frame: torch.Tensor, patches: torch.Tensor, box: Box, weights: torch.T
     """A :class:`Layer` of float ``patches`` (N, 3, h, w) in [0, 1], kept in ``frame``'s dtype
     (uint8 keeps a 4K frame's sub-frames small)."""
     if frame.dtype == torch.uint8:
-        patches = patches.mul(255).clamp_(0, 255).round_().to(torch.uint8)
+        # One sub-frame at a time: a 4K clip's 8 float sub-frames of its object's box are 190 MB.
+        quantised = torch.empty(patches.shape, dtype=torch.uint8)
+        for k, patch in enumerate(patches):
+            quantised[k] = patch.mul(255).clamp_(0, 255).round_()
+        patches = quantised
     return Layer(patches, box, weights)
 
 
@@ -223,9 +227,15 @@ def render_patches(
     size = _export_size(box, render)
     small_bg = _resize(background, size)
     patches = state.render_subframes(camera.crop(x, y, w, h, *size), small_bg, n, render)
-    if size != (w, h):
-        patches = background + _resize(patches - small_bg, (w, h))
-    return patches
+    if size == (w, h):
+        return patches
+    # One sub-frame at a time: a 4K clip's object box is 1640x1230 px, and each batch-sized
+    # temporary of 8 sub-frames was 190 MB.
+    out = background.new_empty((n, 3, h, w))
+    for k in range(n):
+        change = patches[k] - (small_bg if small_bg.dim() == 3 else small_bg[k])
+        torch.add(background if background.dim() == 3 else background[k], _resize(change, (w, h)), out=out[k])
+    return out
 
 
 def render_frame(

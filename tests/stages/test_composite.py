@@ -119,3 +119,20 @@ def test_where_two_objects_overlap_the_nearer_is_in_front(clip: SyntheticClip) -
         assert red_only[0] > red_only[2] + 100  # the far object alone: red there
         assert both[2] > both[0] + 100  # both: the near one, blue, in front
         assert torch.equal(subframes[k], again[k])  # by depth, not by the order given
+
+
+def test_a_box_wider_than_the_export_width_is_upscaled_sub_frame_by_sub_frame(clip: SyntheticClip) -> None:
+    # render_patches and layer work one sub-frame at a time (a 4K box's batch temporaries were
+    # 190 MB each): the same values as the whole batch at once.
+    render = dataclasses.replace(CONFIG.render, export_max_width=40)
+    result = partial_fit(clip, 0, 1.0)
+    box = (20, 10, 120, 90)
+    background = torch.rand(3, 90, 120, generator=torch.Generator().manual_seed(0))
+    patches = export.render_patches(result.state, clip.camera, box, background, N, render)
+    small_bg = export._resize(background, (40, 30))
+    small = result.state.render_subframes(clip.camera.crop(*box, 40, 30), small_bg, N, render)
+    assert torch.allclose(patches, background + export._resize(small - small_bg, (120, 90)), atol=1e-6)
+    frame = torch.zeros(3, 120, 160, dtype=torch.uint8)
+    quantised = export.layer(frame, patches, box, torch.ones(90, 120)).patches
+    assert quantised.dtype == torch.uint8
+    assert torch.equal(quantised, patches.mul(255).clamp(0, 255).round().to(torch.uint8))
