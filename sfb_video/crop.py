@@ -168,18 +168,18 @@ def _resize(image: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 def _native_width(
     image: torch.Tensor, background: torch.Tensor, box: Box, config: CropConfig, blob: torch.Tensor | None
 ) -> float:
-    """:func:`streak_width` of the object in ``box`` at the frame's own resolution: of ``blob``
-    there when given, else of the largest blob of the object region."""
+    """:func:`streak_width` of the object in ``box`` at the frame's own resolution: of the largest
+    blob of its object region (within ``blob`` when given; a window's blob may be its whole box)."""
     x, y, w, h = box
     w, h, x, y = w + min(x, 0), h + min(y, 0), max(x, 0), max(y, 0)  # a box reaching past the top or left
-    if blob is not None:
-        return streak_width(blob[y : y + h, x : x + w].cpu().numpy())
     region = object_region(
         as_float(image[:, y : y + h, x : x + w]),
         as_float(background[:, y : y + h, x : x + w]),
         config.region_threshold,
         0.0,
     )
+    if blob is not None:
+        region &= blob[y : y + h, x : x + w].to(region.device)
     return streak_width(largest_blob(region)[0].cpu().numpy() > 0)
 
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from sfb_video.config import CropConfig
-from sfb_video.crop import make_crop, mask_box, masks_onto, object_region, streak_width
+from sfb_video.crop import box_mask, make_crop, mask_box, masks_onto, object_region, streak_width
 from sfb_video.geometry.camera import PinholeCamera
 
 
@@ -84,8 +84,8 @@ def test_the_streak_width_is_its_thickness_in_any_direction() -> None:
     assert streak_width(np.zeros((5, 5), bool)) == 0.0
 
 
-@pytest.mark.parametrize("with_blob", [True, False])
-def test_a_large_object_is_fitted_at_most_max_object_px_across(with_blob: bool) -> None:
+@pytest.mark.parametrize("given", ["blob", "whole box", "none"])
+def test_a_large_object_is_fitted_at_most_max_object_px_across(given: str) -> None:
     # A 1080p clip's ball, 72 px across, streaking diagonally: the crop is scaled so that the
     # object spans 32 px, not max_width's 200 px wide crop; the camera follows the scale.
     camera = PinholeCamera.from_fov(1920, 1080, 45.0)
@@ -96,10 +96,12 @@ def test_a_large_object_is_fitted_at_most_max_object_px_across(with_blob: bool) 
     image[:, mask] = 0.8
     box = mask_box(blob > 0)
     assert box is not None
-    bounded = make_crop(image, background, box, camera, CropConfig(), mask if with_blob else None)
+    # A joint window's blob may be its whole box: the width is the object's all the same.
+    near = {"blob": mask, "whole box": box_mask(box, (1080, 1920)), "none": None}[given]
+    bounded = make_crop(image, background, box, camera, CropConfig(), near)
     across = streak_width(bounded.object_mask.numpy() > 0)
     assert 29.0 <= across <= 34.0, across
-    free = make_crop(image, background, box, camera, CropConfig(max_object_px=0), mask if with_blob else None)
+    free = make_crop(image, background, box, camera, CropConfig(max_object_px=0), near)
     assert free.image.shape[2] == CropConfig().max_width > bounded.image.shape[2]
     # Both cameras see the object where it is: the box's centre projects to the crop's centre.
     for crop in (bounded, free):
