@@ -181,8 +181,13 @@ def test_recording_holds_the_expected_entities(run: Run) -> None:
         "/fit/track_00/image",
     }
     assert expected <= paths
-    tsr_rows = sum(c.num_rows for c in chunks if c.entity_path == "/tsr")
-    assert tsr_rows == run.config.video.tsr * run.config.demo.frames
+    # A sample per sub-frame on the subframe timeline, and each frame's middle one on the frame
+    # timeline: a stream of its own (and the static codec).
+    on = {
+        timeline: sum(c.num_rows for c in chunks if c.entity_path == "/tsr" and timeline in c.timeline_names)
+        for timeline in ("subframe", "frame")
+    }
+    assert on == {"subframe": run.config.video.tsr * run.config.demo.frames, "frame": run.config.demo.frames}
 
 
 def test_an_interrupted_run_resumes_from_the_last_finished_frame(

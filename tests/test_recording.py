@@ -27,6 +27,7 @@ from sfb_video.model.formation import exposure_times
 from sfb_video.model.motion import Motion
 from sfb_video.model.scene import ObjectState
 from sfb_video.recording import Recorder, shape_text
+from sfb_video.recording.recorder import MASK_CLASS
 
 CAMERA = PinholeCamera.from_fov(64, 48, 45.0)
 N_SUB = 3  # TSR sub-frames per fitted frame
@@ -290,6 +291,7 @@ def test_tsr_has_n_rows_per_fitted_frame_and_its_middle_one_on_the_frame_timelin
             errors = [np.abs(image.astype(np.float64) - truth).mean() for truth in truths]
             assert errors[k] == min(errors) and errors[k] < 5.0, (i, k, errors)
     assert next(decoded, None) is None
+    assert len(decode(recorded.chunks, "/tsr", "frame")) == 3
     for i, image in enumerate(decode(recorded.chunks, "/tsr", "frame")):
         errors = [np.abs(image.astype(np.float64) - to_uint8(sub)).mean() for sub in shown[i]]
         assert errors[len(errors) // 2] == min(errors) and min(errors) < 5.0, (i, errors)
@@ -672,7 +674,9 @@ def test_a_clip_larger_than_the_view_is_recorded_shrunk_with_its_boxes_masks_and
     assert centre == pytest.approx([(x + w / 2) / 2, (y + h / 2) / 2])
     buffer = one_at(chunks, "/world/camera/image/mask", "SegmentationImage:buffer", "frame", 0)
     ids = np.frombuffer(bytes(buffer), dtype=np.uint8).reshape(24, 32)
-    assert np.array_equal(ids, inputs.mask.numpy()[::2, ::2].astype(np.uint8))
+    # Class where at least half of each 2x2 block is (the nearest pixel would shift it).
+    half_or_more = inputs.mask.numpy().reshape(24, 2, 32, 2).mean(axis=(1, 3)) >= 0.5
+    assert np.array_equal(ids, half_or_more.astype(np.uint8) * MASK_CLASS)
     (image,) = decode(chunks, "/world/camera/image", "frame")
     half = to_uint8(inputs.images[0]).reshape(24, 2, 32, 2, 3).mean(axis=(1, 3))
     assert image.shape == (24, 32, 3) and np.abs(image - half).mean() < 5.0
@@ -682,3 +686,23 @@ def test_a_clip_larger_than_the_view_is_recorded_shrunk_with_its_boxes_masks_and
         [CAMERA.fx * point[0] / point[2] + CAMERA.cx + 0.5, CAMERA.fy * point[1] / point[2] + CAMERA.cy + 0.5]
     )
     assert (k @ point)[:2] / point[2] == pytest.approx(full / 2)
+
+
+def test_a_size_the_shrink_does_not_divide_is_scaled_per_axis(inputs: Inputs, tmp_path: Path) -> None:
+    # 65x49 into at most 32x24: f = 3, 22x16; boxes and the pinhole by 22/65 and 16/49, not 1/3.
+    camera = PinholeCamera.from_fov(65, 49, 45.0)
+    image = torch.nn.functional.interpolate(inputs.images[0][None], size=(49, 65), mode="bilinear")[0]
+    path = tmp_path / "recording.rrd"
+    with Recorder(path, camera, "odd", subframes=1, max_view=(32, 24)) as rec:
+        assert rec.shrink == 3 and rec.view_size == (22, 16)
+        rec.log_frame(0, image, image)
+        rec.log_detection(0, {0: (13, 7, 26, 14)}, None)
+    chunks = RrdReader(path).stream().to_chunks()
+    sx, sy = 22 / 65, 16 / 49
+    assert one_at(chunks, "/world/camera", "Pinhole:resolution", None) == [22, 16]
+    k = column_major(one_at(chunks, "/world/camera", "Pinhole:image_from_camera", None))
+    assert k[0, 2] == pytest.approx((camera.cx + 0.5) * sx) and k[1, 1] == pytest.approx(camera.fy * sy)
+    centre = one_at(chunks, "/world/camera/image/detection", "Boxes2D:centers", "frame", 0)
+    assert centre == pytest.approx([26 * sx, 14 * sy])
+    (decoded,) = decode(chunks, "/world/camera/image", "frame")
+    assert decoded.shape == (16, 22, 3)

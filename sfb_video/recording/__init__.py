@@ -32,7 +32,7 @@ Entity layout (what each path holds):
                                    frames without one.
     world/camera/image/mask        SegmentationImage: the detection mask (class 1 = "object",
                                    uncompressed); Clear on frames without one.
-    world/camera/image/subframe_mask  SegmentationImage, subframe timeline only: the sub-frame mask
+    world/camera/image/subframe_mask/track_XX  SegmentationImage, subframe timeline only: the sub-frame mask
                                    (DeFMO's; class 2 = "sub-frame mask") each fit used, in the
                                    fit's time order; only in runs with such masks.
     run/masks, run/config, run/summary, run/shapes  static TextDocuments: the masks the fits used,
@@ -62,11 +62,13 @@ timeline, where every panel it shows has content.
 
 Timelines (all sequences):
 
-    frame      the frame index. Everything but ``tsr``, ``fit`` and the sub-frame poses is on it;
-               at a frame the object's transform is its pose at mid-exposure.
+    frame      the frame index. Everything but ``fit`` and the sub-frame poses is on it (``tsr``
+               by a stream of each frame's middle sub-frame); at a frame the object's
+               transform is its pose at mid-exposure.
     subframe   ``frame * n + k`` for sub-frame k of the n each frame has (``subframes``): scrub it
-               to play the sub-frames. ``tsr`` and the pose at each sub-frame's mid-time live
-               here, not on ``frame`` (so they cannot shadow the frame-level pose); everything
+               to play the sub-frames. ``tsr``'s every sub-frame and the pose at each sub-frame's
+               mid-time live here (the poses not on ``frame``, so they cannot shadow the
+               frame-level pose); everything
                else logged per frame is also stamped at ``frame * n`` so that it shows while
                scrubbing.
     step       the optimisation steps of ``fit/track_XX/<name>``, counted on across the track's

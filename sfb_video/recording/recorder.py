@@ -86,9 +86,13 @@ class Recorder(AtomicOutput):
             raise SfbError(f"subframes must be at least 1, got {subframes}")
         self.path = Path(path)
         self.camera = camera
+        if min(max_view) < 1:
+            raise SfbError(f"max_view must be at least 1x1, got {max_view}")
         self.shrink = max(1, math.ceil(max(camera.width / max_view[0], camera.height / max_view[1])))
-        """f: the recording's images are 1/f of the camera's size."""
-        self.view_size = (round(camera.width / self.shrink), round(camera.height / self.shrink))
+        """f: the recording's images are about 1/f of the camera's size."""
+        self.view_size = (max(1, round(camera.width / self.shrink)), max(1, round(camera.height / self.shrink)))
+        # Per axis: a size that f does not divide (4096x2160, f 3) is scaled by view / size.
+        self._sx, self._sy = self.view_size[0] / camera.width, self.view_size[1] / camera.height
         self.subframes = subframes
         self._frame: int | None = None
         self._masks_shown: set[int] = set()  # the tracks whose masks show
@@ -151,8 +155,8 @@ class Recorder(AtomicOutput):
             self._log(
                 "world/camera/image/detection",
                 rr.Boxes2D(
-                    mins=[(b[0] / self.shrink, b[1] / self.shrink) for b in boxes.values()],
-                    sizes=[(b[2] / self.shrink, b[3] / self.shrink) for b in boxes.values()],
+                    mins=[(b[0] * self._sx, b[1] * self._sy) for b in boxes.values()],
+                    sizes=[(b[2] * self._sx, b[3] * self._sy) for b in boxes.values()],
                     labels=[f"track {t}" for t in boxes],
                 ),
             )
@@ -336,11 +340,11 @@ class Recorder(AtomicOutput):
             self._log_sources()
             self._rec.send_blueprint(layout(sorted(self._steps), list(self._paths.values()), self.subframes))
             self._flush()  # an OutputError comes after aborting
+            self._close_videos()
         except BaseException:
             self.abort()  # Ctrl-C while waiting (does nothing after an abort)
             raise
         tmp, self._tmp = self._tmp, None
-        self._close_videos()
         try:
             # disconnect() writes the footer and closes rerun's end of the pipe; the file is
             # complete once the copy thread has written the last bytes.
@@ -359,8 +363,9 @@ class Recorder(AtomicOutput):
         if self._tmp is None:
             return
         tmp, self._tmp = self._tmp, None
-        self._close_videos()
         try:
+            with contextlib.suppress(Exception):  # an encoder's error is moot: the file is removed
+                self._close_videos()
             self._rec.disconnect()
             # Its write error, if any, is moot: the file is removed.
             with contextlib.suppress(OSError):
@@ -373,9 +378,10 @@ class Recorder(AtomicOutput):
 
     def _log_static(self, camera: PinholeCamera) -> None:
         self._log("world", rr.ViewCoordinates.RDF, static=True)
-        # rerun's pixel centres are at half-integers: the shrunk image's coordinates are those / f.
-        f = self.shrink
-        intrinsics = [[camera.fx / f, 0.0, (camera.cx + 0.5) / f], [0.0, camera.fy / f, (camera.cy + 0.5) / f]]
+        # rerun's pixel centres are at half-integers: the shrunk image's coordinates are those
+        # scaled by view / size.
+        sx, sy = self._sx, self._sy
+        intrinsics = [[camera.fx * sx, 0.0, (camera.cx + 0.5) * sx], [0.0, camera.fy * sy, (camera.cy + 0.5) * sy]]
         self._log(
             "world/camera",
             rr.Pinhole(
@@ -434,17 +440,28 @@ class Recorder(AtomicOutput):
         self._log(path, rr.VideoStream.from_fields(sample=sample, is_keyframe=keyframe))
 
     def _shrunk(self, pixels: np.ndarray) -> np.ndarray:
-        """(H, W, ...) ``pixels`` at the recording's size: averaged (INTER_AREA) where they are
-        colours, the nearest where they are class ids (uint8 (H, W))."""
+        """(H, W, 3) uint8 colours, or (H, W) uint8 ids of one class and 0, at the recording's
+        size, averaged over each pixel's area (INTER_AREA); ids where at least half the area is
+        the class (the nearest pixel would sit a quarter pixel up and left of the image)."""
         if self.shrink == 1:
             return pixels
-        labels = pixels.ndim == 2
-        return cv2.resize(pixels, self.view_size, interpolation=cv2.INTER_NEAREST if labels else cv2.INTER_AREA)
+        if pixels.ndim == 3:
+            return cv2.resize(pixels, self.view_size, interpolation=cv2.INTER_AREA)
+        label = int(pixels.max())
+        share = cv2.resize((pixels > 0).astype(np.float32), self.view_size, interpolation=cv2.INTER_AREA)
+        return (share >= 0.5).astype(np.uint8) * label
 
     def _close_videos(self) -> None:
+        """Close every encoder, each whatever the others do; the first error is raised after."""
         videos, self._videos = self._videos, {}
+        error: BaseException | None = None
         for encoder in videos.values():
-            encoder.close()
+            try:
+                encoder.close()
+            except BaseException as e:  # Ctrl-C included: the rest still close
+                error = error or e
+        if error is not None:
+            raise error
 
     def _log(self, path: str, *archetypes: rr.AsComponents, static: bool = False) -> None:
         self._check_open()
