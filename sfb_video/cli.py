@@ -632,7 +632,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         with sigint_outside_kernels():
             with kernel_call():
                 # trimesh's imports catch BaseException (its optional parts): a Ctrl-C there was
-                # lost and the command ran to the end. Held here, it is raised after the import.
+                # lost and the command ran to the end. Held here, it is raised after the import;
+                # here, not lazily, because the commands import it at many places.
                 import trimesh  # noqa: F401
             return args.func(args)
     except OutputError as exc:
@@ -655,7 +656,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def run() -> typing.NoReturn:
-    """The console command (started by :func:`sfb_video.interrupts.run_command`): :func:`main`'s
+    """The console command (started by :func:`sfb_video.entry.run_command`): :func:`main`'s
     exit status as the process's, whenever Ctrl-C comes.
 
     Once main has returned, every output is whole and closed, and the process ends at once
@@ -664,17 +665,18 @@ def run() -> typing.NoReturn:
     instead of 130 or 0, and so did a Ctrl-C during main that an extension's embedded code had
     seen first (CPython then re-raises the signal at exit even though main handled it).
     """
-    code = INTERRUPTED
+    code: int | None = None
     try:
         code = main()
     except KeyboardInterrupt:  # between main's own handler and the line below
-        code = INTERRUPTED
+        if code is None:
+            code = INTERRUPTED
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    for stream in (sys.stdout, sys.stderr):
+    for stream in (sys.stdout, sys.stderr):  # C libraries' own buffers: none writes to them today
         with contextlib.suppress(OSError, ValueError):  # a closed pipe: nothing more to say
             stream.flush()
-    os._exit(code)
+    os._exit(INTERRUPTED if code is None else code)
 
 
 if __name__ == "__main__":

@@ -11,9 +11,7 @@ held until the call returns (a few milliseconds), and raised there.
 
 from __future__ import annotations
 
-import os
 import signal
-import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -75,14 +73,3 @@ def sigint_outside_kernels() -> Iterator[None]:
     finally:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
-
-def run_command() -> None:
-    """The ``sfb-video`` console command. A Ctrl-C while the command line's modules load (torch
-    and numba: about 2 s) exits with 130 and one line, as one during a run does, not a traceback
-    and death by the signal; this module is light, so the handling starts at once."""
-    try:
-        from sfb_video.cli import run
-    except KeyboardInterrupt:
-        print("sfb-video: interrupted; no partial output was left", file=sys.stderr, flush=True)
-        os._exit(130)
-    run()

@@ -12,6 +12,7 @@ CORE = ("sfb_video.geometry", "sfb_video.render", "sfb_video.model", "sfb_video.
 STAGES = "sfb_video.stages"
 COMMAND_LINE = (
     "sfb_video.cli",
+    "sfb_video.entry",
     "sfb_video.batch",
     "sfb_video.demo",
     "sfb_video.evaluation.runner",
