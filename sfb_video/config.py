@@ -138,11 +138,11 @@ class CropConfig(_Checked):
     max_width: int = bounded(200, ge=16)
     """Crops wider than this are downsampled to it; smaller ones keep their native resolution:
     rendering cost grows with pixels, and upsampling adds none."""
-    max_object_px: float = bounded(32.0, ge=0)
+    max_object_px: float = bounded(48.0, ge=0)
     """Crops are downsampled so that the object's streak is at most this many pixels across
     (:func:`sfb_video.crop.streak_width`): a 1080p phone clip's object, three times a 640x480
-    clip's in pixels, is fitted at the size the fit is measured at, for about a third of the
-    pixels. 0: no bound but ``max_width``."""
+    clip's in pixels, is fitted in fewer pixels. Not lower: at 32 a textured ball's rotation
+    and a short-exposure pen's length were lost (tests/fitting). 0: no bound but ``max_width``."""
     region_threshold: float = bounded(0.05, gt=0, le=3)
     """The object region of a crop is the largest blob of sum over RGB of |I - B| above this (the
     SfB reference's test). It finds the box of ``sfb-video fit``, starts the motion, normalises

@@ -122,7 +122,7 @@ def find_object_box(image: torch.Tensor, background: torch.Tensor, threshold: fl
 def streak_width(blob: np.ndarray) -> float:
     """The width in pixels of the streak in (h, w) bool ``blob``: twice its largest inscribed
     radius, so a thin streak's width whatever its direction (a diagonal streak's box is as tall
-    as it is long). At most the object's diameter, where the blob holds the streak's core."""
+    as it is long). The distance is to pixel centres: a band k pixels wide measures about k + 1."""
     if not blob.any():
         return 0.0
     inside = cv2.distanceTransform(np.pad(blob, 1).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
@@ -179,7 +179,7 @@ def _native_width(
         0.0,
     )
     if blob is not None:
-        region &= blob[y : y + h, x : x + w].to(region.device)
+        region &= blob[y : y + h, x : x + w].to(region.device) > 0
     return streak_width(largest_blob(region)[0].cpu().numpy() > 0)
 
 

@@ -67,7 +67,7 @@ def layer(frame: torch.Tensor, patches: torch.Tensor, box: Box, weights: torch.T
     (uint8 keeps a 4K frame's sub-frames small)."""
     if frame.dtype == torch.uint8:
         # One sub-frame at a time: a 4K clip's 8 float sub-frames of its object's box are 190 MB.
-        quantised = torch.empty(patches.shape, dtype=torch.uint8)
+        quantised = torch.empty_like(patches, dtype=torch.uint8)
         for k, patch in enumerate(patches):
             quantised[k] = patch.mul(255).clamp_(0, 255).round_()
         patches = quantised

@@ -57,7 +57,9 @@ def window_frame(
     pixels, background = frame.pixels.to(device), frame.background_pixels.to(device)
     made = make_crop(pixels, background, box, camera, crop, blob.to(device))
     masks = None if result.masks is None else result.masks.to(device)
-    if masks is not None and made.box != result.crop_box:  # a touched frame's whole blob (run_results.shared_boxes)
+    # A touched frame's whole blob (run_results.shared_boxes) makes another box; the box's own
+    # pixels for a blob can make another working size (the crop bound reads the object's width).
+    if masks is not None and (made.box != result.crop_box or masks.shape[-2:] != made.image.shape[1:]):
         masks = masks_onto(masks, result.crop_box, made)
     return WindowFrame(frame.index, made, masks)
 
