@@ -72,4 +72,3 @@ def sigint_outside_kernels() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, signal.default_int_handler)
-

@@ -20,10 +20,8 @@ from fractions import Fraction
 
 import av
 import numpy as np
-import torch
 
 from sfb_video.errors import SfbError
-from sfb_video.imageio import to_uint8
 
 ENCODER = "libsvtav1"
 PRESET = "12"
@@ -62,14 +60,12 @@ class VideoEncoder:
         self._context.options = {"preset": PRESET, "crf": str(CRF), "svtav1-params": PARAMS}
         self._count = 0
 
-    def encode(self, image: torch.Tensor | np.ndarray) -> tuple[bytes, bool]:
-        """The sample of (3, H, W) float ``image`` in [0, 1] (or (H, W, 3) uint8 RGB), and whether
-        it is a keyframe.
+    def encode(self, pixels: np.ndarray) -> tuple[bytes, bool]:
+        """The sample of (H, W, 3) uint8 RGB ``pixels``, and whether it is a keyframe.
 
         Raises:
             SfbError: when the encoder held the frame back instead of returning its sample.
         """
-        pixels = to_uint8(image) if isinstance(image, torch.Tensor) else image
         rgb = av.VideoFrame.from_ndarray(np.ascontiguousarray(pixels), format="rgb24")
         frame = rgb.reformat(format="yuv420p", dst_colorspace="ITU709")
         frame.pts = self._count
