@@ -45,33 +45,59 @@ from sfb_video.stages.types import FrameWithBackground, Registered
 from sfb_video.video import OUTPUT_PRESET, VideoWriter
 
 
+class Upscaled(Sequence[torch.Tensor]):
+    """Sub-frames of a box rendered smaller than the box, each brought to the box's size when
+    asked for: the box's own background plus the rendering's change from its background, scaled
+    up (so the background keeps its pixels). At 4K an object's box is 1640x1230 px: its 8
+    sub-frames at that size were 190 MB in float.
+
+    Args:
+        background: (3, h, w), or (N, 3, h, w) one per sub-frame: the box's background.
+        changes: (N, 3, h', w') the rendered sub-frames minus the background they were rendered
+            over, at the render size.
+    """
+
+    def __init__(self, background: torch.Tensor, changes: torch.Tensor) -> None:
+        self.background, self.changes = background, changes
+        self.size = (background.shape[-1], background.shape[-2])
+
+    def __len__(self) -> int:
+        return self.changes.shape[0]
+
+    def __getitem__(self, k: int) -> torch.Tensor:  # type: ignore[override]
+        """(3, h, w) float32 sub-frame ``k``."""
+        background = self.background if self.background.dim() == 3 else self.background[k]
+        return background + _resize(self.changes[k], self.size)
+
+    def mean(self, dim: int = 0) -> torch.Tensor:
+        """(3, h, w) the sub-frames' mean (a tensor's signature, so that either can be averaged):
+        the resize is linear, so it is the mean change scaled up."""
+        if dim != 0:
+            raise ValueError("sub-frames average over dim 0 only")
+        background = self.background if self.background.dim() == 3 else self.background.mean(0)
+        return background + _resize(self.changes.mean(0), self.size)
+
+
+Patches = torch.Tensor | Upscaled
+"""(N, 3, h, w) float32 sub-frames of a box in [0, 1]: rendered at the box's size, or
+:class:`Upscaled` to it one at a time."""
+
+
 @dataclass(frozen=True)
 class Layer:
     """One object's sub-frames in its region of a frame.
 
     Attributes:
-        patches: (N, 3, h, w) what replaces the box in each sub-frame, in the frame's dtype
-            (uint8, or float32 in [0, 1]).
+        patches: (N, 3, h, w) float32 in [0, 1], what replaces the box in each sub-frame;
+            quantised to the frame's dtype where pasted.
         box: (x, y, w, h) where.
         weights: (h, w) in [0, 1], how much of each patch pixel replaces the frame's
             (:func:`sfb_video.stages.composite.object_region`).
     """
 
-    patches: torch.Tensor
+    patches: Patches
     box: Box
     weights: torch.Tensor
-
-
-def layer(frame: torch.Tensor, patches: torch.Tensor, box: Box, weights: torch.Tensor) -> Layer:
-    """A :class:`Layer` of float ``patches`` (N, 3, h, w) in [0, 1], kept in ``frame``'s dtype
-    (uint8 keeps a 4K frame's sub-frames small)."""
-    if frame.dtype == torch.uint8:
-        # One sub-frame at a time: a 4K clip's 8 float sub-frames of its object's box are 190 MB.
-        quantised = torch.empty_like(patches, dtype=torch.uint8)
-        for k, patch in enumerate(patches):
-            quantised[k] = patch.mul(255).clamp_(0, 255).round_()
-        patches = quantised
-    return Layer(patches, box, weights)
 
 
 class Pasted(Sequence[torch.Tensor]):
@@ -89,7 +115,7 @@ class Pasted(Sequence[torch.Tensor]):
         self.frame, self.layers = frame, layers
 
     def __len__(self) -> int:
-        return self.layers[0].patches.shape[0]
+        return len(self.layers[0].patches)
 
     def __getitem__(self, k: int) -> torch.Tensor:  # type: ignore[override]
         if not -len(self) <= k < len(self):
@@ -97,8 +123,14 @@ class Pasted(Sequence[torch.Tensor]):
         full = self.frame.clone()
         for part in self.layers:
             x, y, w, h = part.box
+            patch = part.patches[k]
+            if full.dtype == torch.uint8:
+                # Quantised as the frame is stored before the blend, so a fully covered pixel is
+                # the patch's own 8-bit value.
+                patch = patch.mul(255).clamp_(0, 255).round_()
             under = full[:, y : y + h, x : x + w].float()
-            blended = under + part.weights * (part.patches[k].float() - under)
+            # under + weights * (patch - under), with one temporary of the box's size.
+            blended = (patch - under).mul_(part.weights).add_(under)
             full[:, y : y + h, x : x + w] = blended.round_() if full.dtype == torch.uint8 else blended
         return full
 
@@ -217,25 +249,19 @@ def _export_size(box: Box, render: RenderConfig) -> tuple[int, int]:
 
 def render_patches(
     state: ObjectState, camera: PinholeCamera, box: Box, background: torch.Tensor, n: int, render: RenderConfig
-) -> torch.Tensor:
+) -> Patches:
     """(n, 3, h, w) float32 sharp sub-frames of ``state`` in ``box`` over ``background``
     ((3, h, w), or (n, 3, h, w): one per sub-frame, such as a farther object's sub-frames).
 
-    A box wider than ``render.export_max_width`` is rendered at that width and the object scaled
-    up onto it; the background keeps its own pixels."""
+    A box wider than ``render.export_max_width`` is rendered at that width and its sub-frames
+    are :class:`Upscaled` to the box one at a time, when asked for."""
     x, y, w, h = box
     size = _export_size(box, render)
     small_bg = _resize(background, size)
     patches = state.render_subframes(camera.crop(x, y, w, h, *size), small_bg, n, render)
     if size == (w, h):
         return patches
-    # One sub-frame at a time: a 4K clip's object box is 1640x1230 px, and each batch-sized
-    # temporary of 8 sub-frames was 190 MB.
-    out = background.new_empty((n, 3, h, w))
-    for k in range(n):
-        change = patches[k] - (small_bg if small_bg.dim() == 3 else small_bg[k])
-        torch.add(background if background.dim() == 3 else background[k], _resize(change, (w, h)), out=out[k])
-    return out
+    return Upscaled(background, patches - small_bg)
 
 
 def render_frame(
@@ -264,7 +290,7 @@ def render_frame(
     x, y, w, h = box
     patch_bg = as_float(frame.background_pixels[:, y : y + h, x : x + w])
     patches = render_patches(result.state, camera, box, patch_bg, n, render)
-    weights = torch.from_numpy(region[y : y + h, x : x + w]).to(patches.device)
+    weights = torch.from_numpy(region[y : y + h, x : x + w]).to(patch_bg.device)
     blurred = patches.mean(0)
     if n * render.steps_per_subframe < BLUR_POSES:
         # Few sub-frames average into a few sharp copies, not the frame's blur: the quality
@@ -276,8 +302,8 @@ def render_frame(
             result.state.render_blurred(camera_box, small_bg, BLUR_POSES, render) - small_bg, (w, h)
         )
     quality = explained(as_float(frame.pixels[:, y : y + h, x : x + w]), patch_bg, blurred, weights)
-    sharp = Pasted(frame.pixels, [layer(frame.pixels, patches, box, weights)])
-    return Rendered(layer(frame.pixels, blurred[None], box, weights), sharp, quality)
+    sharp = Pasted(frame.pixels, [Layer(patches, box, weights)])
+    return Rendered(Layer(blurred[None], box, weights), sharp, quality)
 
 
 def _depth(result: FrameResult) -> float:
@@ -311,12 +337,7 @@ def composite(
             x, y, w, h = own.box
             plate = Pasted(frame.background_pixels, layers)
             under = torch.stack([as_float(plate[k][:, y : y + h, x : x + w]) for k in range(n)])
-            own = layer(
-                frame.pixels,
-                render_patches(result.state, camera, own.box, under, n, render),
-                own.box,
-                own.weights,
-            )
+            own = Layer(render_patches(result.state, camera, own.box, under, n, render), own.box, own.weights)
         layers.append(own)
     return reconstruction, Pasted(frame.pixels, layers)
 
@@ -406,25 +427,34 @@ def frame_records(
     """One :class:`FrameRecord` per frame of the clip, each object's saved fit (and its window's)
     loaded only while its frame is made, so memory does not grow with the clip."""
     for frame in frames:
-        difference = difference_image(frame.pixels, frame.background_pixels)
-        mask = threshold_difference(difference, config.detect, frame.known)
-        present = results.saved(frame.index)
-        boxes = {s.track: s.box for s, _ in present if s.box is not None}
-        if not present:
-            yield FrameRecord(
-                frame, mask, boxes, (), frame.pixels, [frame.pixels], [unfitted(frame, config.camera)] * n
-            )
-            continue
-        objects = tuple(
-            _object_record(frame, single, results, difference, camera, fps, n, config, diameter)
-            for _, single in present
-        )
-        reconstruction, subframes = composite(
-            frame, [(o.result, o.rendered) for o in objects], camera, n, config.render
-        )
-        yield FrameRecord(
-            frame, mask, boxes, objects, reconstruction, subframes, as_filmed(frame, subframes, config.camera)
-        )
+        # Made in a function of its own, so that this generator holds none of a frame's
+        # renderings while the next frame's are made.
+        yield _frame_record(frame, results, camera, fps, n, config, diameter)
+
+
+def _frame_record(
+    frame: FrameWithBackground,
+    results: RunResults,
+    camera: PinholeCamera,
+    fps: float,
+    n: int,
+    config: Config,
+    diameter: float | None,
+) -> FrameRecord:
+    difference = difference_image(frame.pixels, frame.background_pixels)
+    mask = threshold_difference(difference, config.detect, frame.known)
+    present = results.saved(frame.index)
+    boxes = {s.track: s.box for s, _ in present if s.box is not None}
+    if not present:
+        return FrameRecord(frame, mask, boxes, (), frame.pixels, [frame.pixels], [unfitted(frame, config.camera)] * n)
+    objects = tuple(
+        _object_record(frame, single, results, difference, camera, fps, n, config, diameter) for _, single in present
+    )
+    del difference  # 33 MB a 4K frame, not needed while the objects are composited
+    reconstruction, subframes = composite(frame, [(o.result, o.rendered) for o in objects], camera, n, config.render)
+    return FrameRecord(
+        frame, mask, boxes, objects, reconstruction, subframes, as_filmed(frame, subframes, config.camera)
+    )
 
 
 def _object_record(
@@ -498,6 +528,7 @@ def export_frames(
             for sub in record.filmed:
                 video.write(sub)
             recorder.log_subframes(record.frame.index, record.reconstruction, record.subframes)
+            del record  # its renderings, before the next frame's are made
         done.video_frames = video.frames_written
     for track, (_, state) in tracks.items():
         write_glb(state, track_mesh_path(folder, track))

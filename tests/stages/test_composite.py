@@ -122,17 +122,25 @@ def test_where_two_objects_overlap_the_nearer_is_in_front(clip: SyntheticClip) -
 
 
 def test_a_box_wider_than_the_export_width_is_upscaled_sub_frame_by_sub_frame(clip: SyntheticClip) -> None:
-    # render_patches and layer work one sub-frame at a time (a 4K box's batch temporaries were
-    # 190 MB each): the same values as the whole batch at once.
+    # A box wider than the export width keeps its sub-frames at the render size and scales each
+    # up when it is pasted (a 4K box's 8 sub-frames were 190 MB in float): the background's own
+    # pixels plus the rendering's change, and the paste quantises them as the frame is stored.
     render = dataclasses.replace(CONFIG.render, export_max_width=40)
     result = partial_fit(clip, 0, 1.0)
     box = (20, 10, 120, 90)
     background = torch.rand(3, 90, 120, generator=torch.Generator().manual_seed(0))
     patches = export.render_patches(result.state, clip.camera, box, background, N, render)
+    assert isinstance(patches, export.Upscaled) and patches.changes.shape == (N, 3, 30, 40)
     small_bg = export._resize(background, (40, 30))
     small = result.state.render_subframes(clip.camera.crop(*box, 40, 30), small_bg, N, render)
-    assert torch.allclose(patches, background + export._resize(small - small_bg, (120, 90)), atol=1e-6)
+    expected = background + export._resize(small - small_bg, (120, 90))
+    assert len(patches) == N
+    for k in range(N):
+        assert torch.allclose(patches[k], expected[k], atol=1e-6)
+    assert torch.allclose(patches.mean(0), expected.mean(0), atol=1e-5)
     frame = torch.zeros(3, 120, 160, dtype=torch.uint8)
-    quantised = export.layer(frame, patches, box, torch.ones(90, 120)).patches
-    assert quantised.dtype == torch.uint8
-    assert torch.equal(quantised, patches.mul(255).clamp(0, 255).round().to(torch.uint8))
+    pasted = export.Pasted(frame, [export.Layer(patches, box, torch.ones(90, 120))])
+    for k in range(N):
+        quantised = expected[k].mul(255).clamp(0, 255).round().to(torch.uint8)
+        assert torch.equal(pasted[k][:, 10:100, 20:140], quantised)
+        assert pasted[k][:, :10].sum() == 0 and pasted[k][:, :, :20].sum() == 0
