@@ -30,9 +30,10 @@ from sfb_video.imageio import to_uint8
 # The frame rate reported when FFmpeg gives none (average, guessed and base rates all unset).
 DEFAULT_FPS = 30.0
 # x264 holds its lookahead (40 frames) in every frame thread: 1.7 GB for 4K frames. Above 1080p
-# a short lookahead on two threads keeps it near 0.5 GB, at no cost in speed measured on 2 cores.
+# one frame of lookahead and one B-frame on two threads keep it near 0.3 GB (0.5 with five and
+# three), at no cost in speed or size measured on 2 cores.
 _LARGE_FRAME = 1920 * 1080
-_LARGE_FRAME_OPTIONS = {"rc-lookahead": "5", "threads": "2"}
+_LARGE_FRAME_OPTIONS = {"rc-lookahead": "1", "bf": "1", "threads": "2"}
 # Without cpu-independent, x264's output depended on what the process had freed before encoding
 # (some of its CPU-specific routines seem to read memory they never wrote): the same frames in two
 # processes decoded up to 3 levels apart in a few blocks, so a generated clip (the demo's, the
