@@ -415,24 +415,7 @@ class FrameRecord:
     filmed: Sequence[torch.Tensor]
 
 
-def frame_records(
-    frames: Iterator[FrameWithBackground],
-    results: RunResults,
-    camera: PinholeCamera,
-    fps: float,
-    n: int,
-    config: Config,
-    diameter: float | None,
-) -> Iterator[FrameRecord]:
-    """One :class:`FrameRecord` per frame of the clip, each object's saved fit (and its window's)
-    loaded only while its frame is made, so memory does not grow with the clip."""
-    for frame in frames:
-        # Made in a function of its own, so that this generator holds none of a frame's
-        # renderings while the next frame's are made.
-        yield _frame_record(frame, results, camera, fps, n, config, diameter)
-
-
-def _frame_record(
+def frame_record(
     frame: FrameWithBackground,
     results: RunResults,
     camera: PinholeCamera,
@@ -441,6 +424,8 @@ def _frame_record(
     config: Config,
     diameter: float | None,
 ) -> FrameRecord:
+    """The :class:`FrameRecord` of one frame of the clip, each object's saved fit (and its
+    window's) loaded only while it is made, so memory does not grow with the clip."""
     difference = difference_image(frame.pixels, frame.background_pixels)
     mask = threshold_difference(difference, config.detect, frame.known)
     present = results.saved(frame.index)
@@ -501,7 +486,7 @@ def export_frames(
     diameter: float | None,
     recorder: Recorder,
 ) -> Exported:
-    """Stream the clip once (:func:`frame_records`) and write ``tsr.mp4`` (of ``size`` (width,
+    """Stream the clip once (:func:`frame_record`) and write ``tsr.mp4`` (of ``size`` (width,
     height); N sub-frames per fitted frame, every object of the frame in them; the frame N times
     otherwise), ``meshes/frame_XXXXX_track_YY.glb`` and one ``meshes/track_YY.glb`` per track (its
     lowest-L_I frame's mesh), and log every frame to ``recorder``."""
@@ -510,7 +495,8 @@ def export_frames(
     tracks: dict[int, tuple[float, ObjectState]] = {}
     ensure_folder(folder / MESHES)
     with VideoWriter(folder / TSR_VIDEO, fps * n, *size, preset=OUTPUT_PRESET) as video:
-        for record in frame_records(frames, results, camera, fps, n, config, diameter):
+        for frame in frames:
+            record = frame_record(frame, results, camera, fps, n, config, diameter)
             _log_frame(recorder, record)
             for obj in record.objects:
                 result = obj.result
@@ -528,7 +514,7 @@ def export_frames(
             for sub in record.filmed:
                 video.write(sub)
             recorder.log_subframes(record.frame.index, record.reconstruction, record.subframes)
-            del record  # its renderings, before the next frame's are made
+            del record, frame  # its renderings, before the next frame's are made
         done.video_frames = video.frames_written
     for track, (_, state) in tracks.items():
         write_glb(state, track_mesh_path(folder, track))
