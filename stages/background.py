@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Iterable, Iterator
-from itertools import chain, groupby, islice
+from itertools import groupby, islice
 from pathlib import Path
 
 import torch
@@ -115,13 +115,22 @@ def running_median(frames: Iterable[Frame], window: int) -> Iterator[FrameWithBa
     if len(head) < 2:
         raise SfbError("a running-median background needs at least 2 frames; give a background image instead")
     carried: list[Frame] = []
-    for _, group in groupby(chain(head, stream), key=segment_of):
+    for _, group in groupby(_handed_on(head, stream), key=segment_of):
         last: deque[Frame] = deque(maxlen=window)
         yield from _running_median(_kept(group, last), window, carried)
         # A camera that pans on to a new reference: its first frames' background starts from
         # the last frames before it, drawn there, not from a few frames of its own (in which a
         # slow object leaves a ghost).
         carried = [moved for moved in map(onto_next, last) if moved is not None]
+
+
+def _handed_on(head: list[Frame], stream: Iterator[Frame]) -> Iterator[Frame]:
+    """The frames of ``head`` (emptied as they pass), then ``stream``'s: no list of the clip's
+    first frames outlives them (``chain`` keeps its arguments: 4K frames are 25 MB each)."""
+    head.reverse()
+    while head:
+        yield head.pop()
+    yield from stream
 
 
 def _kept(frames: Iterable[Frame], last: deque[Frame]) -> Iterator[Frame]:
@@ -143,9 +152,11 @@ def _running_median(frames: Iterable[Frame], window: int, carried: list[Frame]) 
             background = _median([f.image for f in others], [_cover(f) for f in others]) if others else frame.image
             yield _paired(frame, background, _seen(others))
         previous = deque(carried + [f for f in head[:window] if usable(f)], maxlen=window)
+        # The first frames leave as the window moves on, not kept to the clip's end by these.
+        rest, head, seen, others = head[window:], [], [], []
     else:
-        head, previous = [], deque(carried, maxlen=window)
-    for frame in chain(head[window:], stream):
+        rest, previous = [], deque(carried, maxlen=window)
+    for frame in _handed_on(rest, stream):
         known = list(previous)
         background = _median([f.image for f in known], [_cover(f) for f in known]) if known else frame.image
         yield _paired(frame, background, _seen(known))
