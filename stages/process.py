@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -47,7 +47,7 @@ from sfb_video.stages.run_results import FolderSource, RunResults, read_run, wri
 from sfb_video.stages.summary import summarise
 from sfb_video.stages.track import track_and_fit
 from sfb_video.stages.trajectory import write_csv
-from sfb_video.stages.types import FrameStatus
+from sfb_video.stages.types import FrameStatus, FrameWithBackground
 from sfb_video.stages.windows import fit_windows
 from sfb_video.timing import timed
 from sfb_video.video import VideoInfo
@@ -251,7 +251,12 @@ def _process(
     if motion is not None:
         motion.save(run.work / CAMERA_MOTION)
     camera = on_canvas(camera, motion)
-    frames = with_backgrounds(options.video, config.video, info.frame_count, selected, options.background, motion)
+
+    def clip_frames() -> Iterator[FrameWithBackground]:
+        # A new stream for each pass, held by nothing here: a pass that stops reading early
+        # would otherwise keep its background window (six 4K frames: 150 MB) through the export.
+        return with_backgrounds(options.video, config.video, info.frame_count, selected, options.background, motion)
+
     # disable=None: no bar when stderr is not a terminal (logs, CI).
     with tqdm(total=total, unit="frame", desc=printable(options.video.name), disable=True if quiet else None) as bar:
         counted: set[int] = set()  # the bar counts frames; a frame of several objects reports each
@@ -266,12 +271,11 @@ def _process(
                 postfix = {"frame": status.index, "track": status.track, "start": result.start}
                 bar.set_postfix(postfix | {"L_I": f"{result.losses['image']:.4f}"})
 
-        statuses = track_and_fit(frames, run.work, camera, config, device, masks, report)
+        statuses = track_and_fit(clip_frames(), run.work, camera, config, device, masks, report)
     if not statuses:
         raise SfbError(f"{printable(str(options.video))}: no frames in the requested range")
     if config.joint.enabled:
         results = RunResults(statuses, FolderSource(run.work), config.joint)
-        frames = with_backgrounds(options.video, config.video, info.frame_count, selected, options.background, motion)
         with tqdm(total=len(results.windows), unit="window", desc="joint fit", disable=True if quiet else None) as bar:
 
             def report_window(window: SavedWindow) -> None:
@@ -281,6 +285,6 @@ def _process(
                     e=f"{window.result.trajectory.exposure_fraction:.2f}",
                 )
 
-            fit_windows(frames, run.work, results, camera, config, device, report_window)
+            fit_windows(clip_frames(), run.work, results, camera, config, device, report_window)
     write_statuses(run.work, statuses)
     return export_run(run.work, config, config.video.tsr, str(device))
