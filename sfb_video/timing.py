@@ -11,7 +11,7 @@ from __future__ import annotations
 import functools
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Generator, Iterable, Iterator
 from contextlib import contextmanager
 from typing import ParamSpec, TypeVar
 
@@ -51,7 +51,7 @@ def timed(name: str) -> Callable[[Callable[P, R]], Callable[P, R]]:
     return decorate
 
 
-def timed_iter(name: str, items: Iterable[T]) -> Iterator[T]:
+def timed_iter(name: str, items: Iterable[T]) -> Generator[T, None, None]:
     """``items``, with the work of producing each one counted towards stage ``name`` (the
     consumer's work between items is not)."""
     iterator = iter(items)

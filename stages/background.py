@@ -12,7 +12,7 @@ Three sources, as the paper and users need them:
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Generator, Iterable, Iterator
 from itertools import groupby, islice
 from pathlib import Path
 
@@ -222,8 +222,9 @@ def with_backgrounds(
     frames: range | None = None,
     background: Path | None = None,
     motion: CameraMotion | None = None,
-) -> Iterator[FrameWithBackground]:
-    """The frames of ``path`` (those in ``frames`` when given) with their backgrounds.
+) -> Generator[FrameWithBackground, None, None]:
+    """The frames of ``path`` (those in ``frames`` when given) with their backgrounds; close it
+    to let go of the frames it holds when stopping early.
 
     Args:
         background: a background image; without it ``config.background`` says how to estimate one.

@@ -10,7 +10,9 @@ import dataclasses
 import json
 import shutil
 import statistics
+from collections.abc import Generator
 from pathlib import Path
+from typing import Any
 
 import av
 import numpy as np
@@ -242,3 +244,28 @@ def test_export_re_renders_at_another_tsr_factor_without_fitting(run: Run, tmp_p
     assert all(p.stat().st_mtime_ns == s for p, s in stamps.items())
     views = list((copy / "novel_views").glob("frame_*.mp4"))
     assert len(views) == 1 and views[0].with_suffix(".png").is_file()
+
+
+def test_each_pass_closes_its_stream_of_frames_before_the_export(
+    run: Run, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The windows pass stops reading after its last window: left suspended, its stream held the
+    # background window (six frames and a background, 166 MB at 4K) through the export.
+    import sfb_video.stages.process as process
+
+    streams: list[Generator[Any, None, None]] = []
+    open_at_export: list[bool] = []
+    with_backgrounds, export_run = process.with_backgrounds, process.export_run
+
+    def recorded(*args: Any, **kwargs: Any) -> Generator[Any, None, None]:
+        streams.append(with_backgrounds(*args, **kwargs))
+        return streams[-1]
+
+    def export(*args: Any, **kwargs: Any) -> dict:
+        open_at_export.extend(stream.gi_frame is not None for stream in streams)
+        return export_run(*args, **kwargs)
+
+    monkeypatch.setattr(process, "with_backgrounds", recorded)
+    monkeypatch.setattr(process, "export_run", export)
+    process_clip(ProcessOptions(video=run.video, out=tmp_path / "again"), run.config, CPU, quiet=True)
+    assert open_at_export == [False, False]  # the fit pass's stream and the windows pass's
