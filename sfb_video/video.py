@@ -31,7 +31,8 @@ from sfb_video.imageio import to_uint8
 DEFAULT_FPS = 30.0
 # x264 holds its lookahead (40 frames) in every frame thread: 1.7 GB for 4K frames. Above 1080p
 # one frame of lookahead and one B-frame on two threads keep it near 0.3 GB (0.5 with five and
-# three), at no cost in speed or size measured on 2 cores.
+# three B-frames). The cost, on a 4K run's sub-frames at crf 18: 45.6 dB to them instead of
+# 47.4, at 60% of the size; no cost in speed measured on 2 cores.
 _LARGE_FRAME = 1920 * 1080
 _LARGE_FRAME_OPTIONS = {"rc-lookahead": "1", "bf": "1", "threads": "2"}
 # Without cpu-independent, x264's output depended on what the process had freed before encoding
